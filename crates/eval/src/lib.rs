@@ -1,0 +1,1 @@
+//! Trajectory association, Umeyama alignment, ATE and RPE, plots

@@ -1,0 +1,1 @@
+//! Synthetic textured-room sequences with exact ground truth, written in TUM layout

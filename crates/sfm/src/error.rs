@@ -37,4 +37,10 @@ pub enum SfmError {
     /// An error of the scene layer.
     #[error(transparent)]
     Scene(#[from] colslam_scene::SceneError),
+    /// An error of bundle adjustment.
+    #[error("bundle adjustment: {0}")]
+    Bundle(#[from] colslam_optim::BaError),
+    /// An error of a geometric estimator.
+    #[error(transparent)]
+    Estimator(#[from] colslam_estimators::EstimatorError),
 }

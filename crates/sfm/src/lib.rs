@@ -5,6 +5,7 @@
 //! sequential SLAM pipeline drives them (paper sections 3.3-3.6).
 
 pub mod correspondence_graph;
+pub mod bundle;
 pub mod error;
 pub mod triangulator;
 

@@ -1,0 +1,247 @@
+//! Bundle adjustment of a `Reconstruction`: builds a `colslam_optim::Problem`
+//! from a chosen set of variable images and points, solves it and writes the
+//! refined poses, points and intrinsics back (after COLMAP's
+//! `BundleAdjustmentConfig` and `IncrementalMapper::AdjustLocalBundle` /
+//! `AdjustGlobalBundle`).
+
+use crate::SfmError;
+use colslam_optim::{BaOptions, BaPose, BaReport, BundleAdjuster, IntrinsicsRefinement, LossFunction, Problem};
+use colslam_scene::{CameraId, ImageId, Point3DId, Reconstruction};
+use std::collections::{BTreeMap, BTreeSet};
+
+/// Which parts of the model a bundle adjustment refines.
+#[derive(Debug, Clone, Default)]
+pub struct BundleConfig {
+    /// Images whose poses vary (must be registered).
+    pub variable_images: BTreeSet<ImageId>,
+    /// Images whose poses are held constant. Other registered images that
+    /// observe a variable point are added as constant too.
+    pub constant_images: BTreeSet<ImageId>,
+    /// Images whose pose is constant except for one translation coordinate
+    /// (gauge fixing through a second pose); chosen automatically when
+    /// `None` and the bundle has no constant image.
+    pub gauge: Option<(ImageId, ImageId)>,
+    /// Points that vary: `None` means every point observed by a variable image.
+    pub variable_points: Option<BTreeSet<Point3DId>>,
+    /// Refine the intrinsics of cameras used by variable images.
+    pub refine_intrinsics: bool,
+}
+
+/// Options of [`adjust_bundle`] beyond the configuration.
+#[derive(Debug, Clone)]
+pub struct BundleOptions {
+    /// Solver options (loss, tolerances, iterations, which intrinsics).
+    pub ba: BaOptions,
+}
+
+impl Default for BundleOptions {
+    fn default() -> Self {
+        Self { ba: BaOptions::default() }
+    }
+}
+
+impl BundleOptions {
+    /// COLMAP's local-BA settings: soft-L1 loss of scale 1 px, at most 25
+    /// iterations.
+    pub fn local() -> Self {
+        Self {
+            ba: BaOptions {
+                loss: LossFunction::SoftL1(1.0),
+                max_iterations: 25,
+                ..BaOptions::default()
+            },
+        }
+    }
+
+    /// COLMAP's global-BA settings: trivial loss, at most 50 iterations.
+    pub fn global() -> Self {
+        Self { ba: BaOptions { max_iterations: 50, ..BaOptions::default() } }
+    }
+}
+
+/// The up-to-`max_images` registered images sharing the most 3D points with
+/// `image_id` (COLMAP's `FindLocalBundle`), most shared first.
+pub fn most_connected_images(rec: &Reconstruction, image_id: ImageId, max_images: usize) -> Vec<ImageId> {
+    let Some(img) = rec.image(image_id) else { return Vec::new() };
+    let mut shared: BTreeMap<ImageId, usize> = BTreeMap::new();
+    for p2 in &img.points2d {
+        let Some(p) = p2.point3d_id.and_then(|pid| rec.point3d(pid)) else { continue };
+        for el in &p.track {
+            if el.image_id != image_id {
+                *shared.entry(el.image_id).or_insert(0) += 1;
+            }
+        }
+    }
+    let mut v: Vec<(ImageId, usize)> = shared.into_iter().collect();
+    v.sort_by(|a, b| b.1.cmp(&a.1).then(a.0.cmp(&b.0)));
+    v.into_iter().take(max_images).map(|(id, _)| id).collect()
+}
+
+/// Runs bundle adjustment on the part of `rec` named by `config` and writes
+/// the result back.
+pub fn adjust_bundle(rec: &mut Reconstruction, config: &BundleConfig, opts: &BundleOptions) -> Result<BaReport, SfmError> {
+    let variable_points: BTreeSet<Point3DId> = match &config.variable_points {
+        Some(p) => p.iter().copied().filter(|id| rec.point3d(*id).is_some()).collect(),
+        None => {
+            let mut s = BTreeSet::new();
+            for id in &config.variable_images {
+                let img = rec.image(*id).ok_or(SfmError::UnknownImage(*id))?;
+                s.extend(img.points2d.iter().filter_map(|p| p.point3d_id));
+            }
+            s
+        }
+    };
+    // Every registered image observing a variable point takes part.
+    let mut images: BTreeSet<ImageId> = config.variable_images.clone();
+    for pid in &variable_points {
+        if let Some(p) = rec.point3d(*pid) {
+            images.extend(p.track.iter().map(|e| e.image_id));
+        }
+    }
+    images.extend(config.constant_images.iter().copied());
+
+    let mut problem = Problem::default();
+    let mut cam_index: BTreeMap<CameraId, usize> = BTreeMap::new();
+    let mut pose_index: BTreeMap<ImageId, usize> = BTreeMap::new();
+    for id in &images {
+        let img = rec.image(*id).ok_or(SfmError::UnknownImage(*id))?;
+        if !img.registered {
+            continue;
+        }
+        let variable = config.variable_images.contains(id) && !config.constant_images.contains(id);
+        if !cam_index.contains_key(&img.camera_id) {
+            let cam = rec.camera(img.camera_id).ok_or(colslam_scene::SceneError::UnknownCamera(img.camera_id))?;
+            let refine = if config.refine_intrinsics { IntrinsicsRefinement::FromOptions } else { IntrinsicsRefinement::Fixed };
+            cam_index.insert(img.camera_id, problem.add_camera(cam.camera.clone(), refine));
+        }
+        let pose = if variable { BaPose::variable(img.cam_from_world) } else { BaPose::fixed(img.cam_from_world) };
+        pose_index.insert(*id, problem.add_pose(pose));
+    }
+    // Cameras used by a constant image only stay fixed even when refining.
+    if config.refine_intrinsics {
+        for (cid, &ci) in &cam_index {
+            let used_by_variable = config
+                .variable_images
+                .iter()
+                .filter_map(|id| rec.image(*id))
+                .any(|img| img.camera_id == *cid);
+            if !used_by_variable {
+                problem.cameras[ci].refine = IntrinsicsRefinement::Fixed;
+            }
+        }
+    }
+    let mut point_ids = Vec::with_capacity(variable_points.len());
+    for pid in &variable_points {
+        let Some(p) = rec.point3d(*pid) else { continue };
+        let pi = problem.add_point(p.xyz, false);
+        point_ids.push(*pid);
+        for el in &p.track {
+            let (Some(&pose), Some(img)) = (pose_index.get(&el.image_id), rec.image(el.image_id)) else { continue };
+            let Some(&cam) = cam_index.get(&img.camera_id) else { continue };
+            let Some(kp) = img.points2d.get(el.point2d_idx as usize) else { continue };
+            problem.add_observation(pose, cam, pi, kp.xy);
+        }
+    }
+    // Gauge: with no constant pose, fix one pose and one translation
+    // coordinate of another, as COLMAP does.
+    let any_constant = problem.poses.iter().any(|p| p.fixed);
+    let gauge = config.gauge.or_else(|| {
+        if any_constant {
+            return None;
+        }
+        let mut it = config.variable_images.iter();
+        match (it.next(), it.next()) {
+            (Some(a), Some(b)) => Some((*a, *b)),
+            _ => None,
+        }
+    });
+    if let Some((a, b)) = gauge {
+        if let (Some(&ia), Some(&ib)) = (pose_index.get(&a), pose_index.get(&b)) {
+            problem.fix_gauge(ia, ib);
+        }
+    }
+
+    let report = BundleAdjuster::solve(&mut problem, &opts.ba)?;
+
+    for (id, &pi) in &pose_index {
+        if let Some(pose) = problem.poses.get(pi) {
+            if !pose.fixed || pose.fixed_translation.iter().any(|f| *f) {
+                rec.set_cam_from_world(*id, pose.cam_from_world)?;
+            }
+        }
+    }
+    for (pid, bp) in point_ids.iter().zip(&problem.points) {
+        if let Some(xyz) = rec.point3d_xyz_mut(*pid) {
+            *xyz = bp.xyz;
+        }
+    }
+    if config.refine_intrinsics {
+        for (cid, &ci) in &cam_index {
+            if let (Some(dst), Some(src)) = (rec.camera_mut(*cid), problem.cameras.get(ci)) {
+                dst.params.clone_from(&src.camera.params);
+            }
+        }
+    }
+    Ok(report)
+}
+
+/// Global bundle adjustment: every registered image and every point vary,
+/// the gauge is fixed through the first two registered images.
+pub fn adjust_global(rec: &mut Reconstruction, refine_intrinsics: bool, opts: &BundleOptions) -> Result<BaReport, SfmError> {
+    let reg: Vec<ImageId> = rec.registered_image_ids().to_vec();
+    let gauge = match (reg.first(), reg.get(1)) {
+        (Some(a), Some(b)) => Some((*a, *b)),
+        _ => None,
+    };
+    let config = BundleConfig {
+        variable_images: reg.iter().copied().collect(),
+        constant_images: BTreeSet::new(),
+        gauge,
+        variable_points: Some(rec.point3d_ids().into_iter().collect()),
+        refine_intrinsics,
+    };
+    adjust_bundle(rec, &config, opts)
+}
+
+/// Local bundle adjustment around `image_id`: it and its up to
+/// `num_images - 1` most connected images vary, with every point they
+/// observe; other images observing those points are constant. When the
+/// bundle touches no constant image (a young map), its two least connected
+/// members fix the gauge (COLMAP's `AdjustLocalBundle`).
+pub fn adjust_local(
+    rec: &mut Reconstruction,
+    image_id: ImageId,
+    num_images: usize,
+    refine_intrinsics: bool,
+    opts: &BundleOptions,
+) -> Result<BaReport, SfmError> {
+    let mut local = vec![image_id];
+    local.extend(most_connected_images(rec, image_id, num_images.saturating_sub(1)));
+    let variable: BTreeSet<ImageId> = local.iter().copied().collect();
+    let mut points = BTreeSet::new();
+    for id in &local {
+        if let Some(img) = rec.image(*id) {
+            points.extend(img.points2d.iter().filter_map(|p| p.point3d_id));
+        }
+    }
+    let mut observers = BTreeSet::new();
+    for pid in &points {
+        if let Some(p) = rec.point3d(*pid) {
+            observers.extend(p.track.iter().map(|e| e.image_id));
+        }
+    }
+    let has_constant = observers.iter().any(|id| !variable.contains(id));
+    let gauge = if has_constant || local.len() < 2 {
+        None
+    } else {
+        Some((local[local.len() - 1], local[local.len() - 2]))
+    };
+    let config = BundleConfig {
+        variable_images: variable,
+        constant_images: BTreeSet::new(),
+        gauge,
+        variable_points: Some(points),
+        refine_intrinsics,
+    };
+    adjust_bundle(rec, &config, opts)
+}

@@ -75,7 +75,58 @@ impl CameraModelId {
 
     /// Number of parameters.
     pub fn num_params(self) -> usize {
-        self.param_names().split(',').count()
+        match self {
+            Self::SimplePinhole => 3,
+            Self::Pinhole | Self::SimpleRadial => 4,
+            Self::Radial => 5,
+            Self::OpenCv | Self::OpenCvFisheye => 8,
+            Self::FullOpenCv => 12,
+        }
+    }
+
+    /// Parameter names in COLMAP order, one entry per parameter.
+    pub fn param_name_list(self) -> impl Iterator<Item = &'static str> {
+        self.param_names().split(',').map(str::trim)
+    }
+
+    /// Index of the parameter called `name` (e.g. "k1"), if the model has one.
+    pub fn param_index(self, name: &str) -> Option<usize> {
+        self.param_name_list().position(|n| n.eq_ignore_ascii_case(name.trim()))
+    }
+
+    /// Indices of the focal length parameter(s): one shared `f` or `fx, fy`
+    /// (COLMAP's `focal_length_idxs`).
+    pub fn focal_length_idxs(self) -> &'static [usize] {
+        if self.has_single_focal() { &[0] } else { &[0, 1] }
+    }
+
+    /// Indices of the principal point `cx, cy` (COLMAP's `principal_point_idxs`).
+    pub fn principal_point_idxs(self) -> &'static [usize] {
+        if self.has_single_focal() { &[1, 2] } else { &[2, 3] }
+    }
+
+    /// Indices of the extra (distortion) parameters, possibly empty
+    /// (COLMAP's `extra_params_idxs`).
+    pub fn extra_params_idxs(self) -> &'static [usize] {
+        const IDXS: [usize; 12] = [0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11];
+        let start = self.num_extra_start();
+        // Invariant: start <= num_params <= 12 for every model (see num_params).
+        &IDXS[start..self.num_params()]
+    }
+
+    /// Index of the first extra parameter (3 for one focal, 4 for two).
+    pub(crate) fn num_extra_start(self) -> usize {
+        if self.has_single_focal() { 3 } else { 4 }
+    }
+
+    /// True for models with one focal length `f` shared by both axes.
+    pub fn has_single_focal(self) -> bool {
+        matches!(self, Self::SimplePinhole | Self::SimpleRadial | Self::Radial)
+    }
+
+    /// True for models with distortion parameters (anything but the pinholes).
+    pub fn has_distortion_params(self) -> bool {
+        !matches!(self, Self::SimplePinhole | Self::Pinhole)
     }
 }
 
@@ -96,6 +147,12 @@ mod tests {
             assert_eq!(CameraModelId::from_id(m.id()), Some(m));
             assert_eq!(CameraModelId::from_name(&m.name().to_lowercase()), Some(m));
             assert_eq!(m.num_params(), n, "{m}");
+            assert_eq!(m.param_name_list().count(), n, "{m}");
+            let mut all: Vec<usize> = m.focal_length_idxs().to_vec();
+            all.extend_from_slice(m.principal_point_idxs());
+            all.extend_from_slice(m.extra_params_idxs());
+            assert_eq!(all, (0..n).collect::<Vec<_>>(), "{m}");
+            assert_eq!(m.param_index("cx"), Some(m.principal_point_idxs()[0]), "{m}");
         }
         assert_eq!(CameraModelId::from_id(99), None);
     }

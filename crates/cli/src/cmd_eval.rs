@@ -1,0 +1,82 @@
+//! `colslam eval`: ATE and RPE of an estimated trajectory against ground
+//! truth, with the numbers of `evo_ape tum -as` / `evo_rpe tum -as`, and a plot.
+
+use anyhow::{Context, Result};
+use colslam_eval::{evaluate_files, plot::plot_evaluation, Alignment, EvalOptions};
+use std::path::PathBuf;
+
+/// Alignment choices on the command line.
+#[derive(Debug, Clone, Copy, clap::ValueEnum)]
+pub enum AlignArg {
+    /// Similarity (rotation, translation, scale): `evo -as`.
+    Sim3,
+    /// Rigid (rotation, translation): `evo -a`.
+    Se3,
+    /// Scale only: `evo -s`.
+    Scale,
+    /// No alignment.
+    None,
+}
+
+/// Arguments of `eval`.
+#[derive(Debug, clap::Args)]
+pub struct EvalArgs {
+    /// Ground-truth trajectory (TUM format).
+    #[arg(long)]
+    pub gt: PathBuf,
+    /// Estimated trajectory (TUM format).
+    #[arg(long)]
+    pub est: PathBuf,
+    /// Print one JSON object instead of a table.
+    #[arg(long)]
+    pub json: bool,
+    /// Where to write the PNG plot (default: beside the estimate, `<name>.eval.png`).
+    #[arg(long)]
+    pub plot: Option<PathBuf>,
+    /// Do not write a plot.
+    #[arg(long, conflicts_with = "plot")]
+    pub no_plot: bool,
+    /// Maximum timestamp difference for association, seconds.
+    #[arg(long, default_value_t = 0.01)]
+    pub max_diff: f64,
+    /// Time offset added to the estimate's timestamps, seconds.
+    #[arg(long, default_value_t = 0.0, allow_hyphen_values = true)]
+    pub offset: f64,
+    /// Alignment of the estimate onto the ground truth.
+    #[arg(long, value_enum, default_value = "sim3")]
+    pub align: AlignArg,
+    /// RPE frame delta.
+    #[arg(long, default_value_t = 1)]
+    pub delta: usize,
+}
+
+/// Runs `eval`.
+pub fn run(args: &EvalArgs) -> Result<()> {
+    let opts = EvalOptions {
+        max_diff: args.max_diff,
+        offset: args.offset,
+        align: match args.align {
+            AlignArg::Sim3 => Alignment::Sim3,
+            AlignArg::Se3 => Alignment::Se3,
+            AlignArg::Scale => Alignment::Scale,
+            AlignArg::None => Alignment::None,
+        },
+        rpe_delta: args.delta,
+        ..EvalOptions::default()
+    };
+    let report = evaluate_files(&args.gt, &args.est, &opts)?;
+    if !args.no_plot {
+        let path = args.plot.clone().unwrap_or_else(|| {
+            let stem = args.est.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
+            args.est.with_file_name(format!("{stem}.eval.png"))
+        });
+        plot_evaluation(&report, &path).with_context(|| format!("writing the plot {}", path.display()))?;
+        tracing::info!("plot written to {}", path.display());
+    }
+    if args.json {
+        println!("{}", serde_json::to_string(&report)?);
+    } else {
+        println!("{report}");
+    }
+    Ok(())
+}

@@ -1,0 +1,234 @@
+//! `colslam run`: the SLAM pipeline on a video or an image sequence.
+
+use anyhow::{bail, Context, Result};
+use colslam_camera::{presets, Camera};
+use colslam_io::{open_source, FrameSource, SourceOptions};
+use colslam_slam::{write_outputs, write_report, EventSink, OutputFormat, RunReport, Slam, SlamOptions, Stage};
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+/// Focal length prior for unknown cameras, as a multiple of the larger image
+/// side (COLMAP's default prior, `default_focal_length_factor` 1.2).
+pub const DEFAULT_FOCAL_FACTOR: f64 = 1.2;
+
+/// Pipeline options shared by `run` and `demo`.
+#[derive(Debug, Clone, clap::Args)]
+pub struct PipelineArgs {
+    /// Feature extractor.
+    #[arg(long, default_value = "orb")]
+    pub features: String,
+    /// Matcher.
+    #[arg(long, default_value = "nn")]
+    pub matcher: String,
+    /// Keypoints per frame.
+    #[arg(long, default_value_t = SlamOptions::default().num_features)]
+    pub num_features: usize,
+    /// Use every s-th frame.
+    #[arg(long, default_value_t = 1)]
+    pub skip: usize,
+    /// Process at most this many frames (after skip).
+    #[arg(long)]
+    pub max_frames: Option<usize>,
+    /// Frames considered for map initialisation.
+    #[arg(long, default_value_t = SlamOptions::default().init_frames)]
+    pub init_frames: usize,
+    /// Flow score a frame must exceed to become a keyframe.
+    #[arg(long, default_value_t = SlamOptions::default().flow_threshold)]
+    pub flow_threshold: f64,
+    /// Matches to the last keyframe a keyframe needs.
+    #[arg(long, default_value_t = SlamOptions::default().min_matches)]
+    pub min_matches: usize,
+    /// Refine focal length and distortion in bundle adjustment.
+    #[arg(long)]
+    pub refine_intrinsics: bool,
+    /// Worker threads (0: all cores).
+    #[arg(long, default_value_t = 0)]
+    pub threads: usize,
+    /// Seed of every random choice.
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
+    /// Write the COLMAP model as text instead of binary.
+    #[arg(long)]
+    pub text: bool,
+}
+
+impl PipelineArgs {
+    /// The pipeline options these arguments select.
+    pub fn slam_options(&self) -> SlamOptions {
+        SlamOptions {
+            features: self.features.clone(),
+            matcher: self.matcher.clone(),
+            num_features: self.num_features,
+            init_frames: self.init_frames,
+            flow_threshold: self.flow_threshold,
+            min_matches: self.min_matches,
+            refine_intrinsics: self.refine_intrinsics,
+            seed: self.seed,
+            ..SlamOptions::default()
+        }
+    }
+}
+
+/// Arguments of `run`.
+#[derive(Debug, clap::Args)]
+pub struct RunArgs {
+    /// Video file or image sequence folder (TUM, EuRoC, KITTI layouts or plain images).
+    pub input: PathBuf,
+    /// Output folder.
+    #[arg(short, long)]
+    pub output: PathBuf,
+    /// Camera file (YAML/TOML; see the camera crate). Default: a camera file
+    /// found beside the input.
+    #[arg(long, conflicts_with = "preset")]
+    pub camera: Option<PathBuf>,
+    /// Built-in camera preset (tum-fr1, tum-fr2, tum-fr3, kitti-984).
+    #[arg(long)]
+    pub preset: Option<String>,
+    /// Focal length in pixels for an unknown camera (principal point at the
+    /// image centre; refined by bundle adjustment).
+    #[arg(long, conflicts_with_all = ["camera", "preset"])]
+    pub focal: Option<f64>,
+    /// Ground-truth trajectory (TUM format) to evaluate the result against.
+    #[arg(long)]
+    pub gt: Option<PathBuf>,
+    #[command(flatten)]
+    pub pipeline: PipelineArgs,
+}
+
+/// The camera of a run, and whether it is a guess to be refined.
+fn resolve_camera(args: &RunArgs, source: &dyn FrameSource) -> Result<(Camera, bool)> {
+    if let Some(path) = &args.camera {
+        return Ok((colslam_camera::file::read_camera_file(path)?, false));
+    }
+    if let Some(name) = &args.preset {
+        let cam = presets::preset(name).with_context(|| {
+            format!("unknown camera preset {name:?} (known: {})", presets::preset_names().join(", "))
+        })?;
+        return Ok((cam, false));
+    }
+    let size = source.image_size();
+    if args.focal.is_none() {
+        if let Some(path) = source.camera_file() {
+            let cam = colslam_camera::file::read_camera_file(&path)?;
+            tracing::info!("camera from {}", path.display());
+            return Ok((cam, false));
+        }
+    }
+    let Some((w, h)) = size else {
+        bail!("{}: cannot tell the image size; give --camera or --preset", args.input.display());
+    };
+    let f = args.focal.unwrap_or(DEFAULT_FOCAL_FACTOR * w.max(h) as f64);
+    if !(f.is_finite() && f > 0.0) {
+        bail!("--focal must be a positive number of pixels, got {f}");
+    }
+    // OpenCV convention: the centre of a w-pixel row is at (w - 1) / 2.
+    let cam = Camera::simple_pinhole(w as u64, h as u64, f, (w as f64 - 1.0) / 2.0, (h as f64 - 1.0) / 2.0);
+    tracing::info!("unknown camera: focal {f:.1} px, principal point at the centre, refined by bundle adjustment");
+    Ok((cam, args.focal.is_none()))
+}
+
+/// What a pipeline run produced.
+pub struct RunOutcome {
+    /// The report written to `report.json`.
+    pub report: RunReport,
+    /// Evaluation against ground truth, when given.
+    pub eval: Option<colslam_eval::EvalReport>,
+}
+
+/// Runs the pipeline on `args.input` into `args.output`.
+pub fn run_pipeline(args: &RunArgs, quiet: bool, events: EventSink) -> Result<RunOutcome> {
+    let started = Instant::now();
+    let p = &args.pipeline;
+    if p.threads > 0 {
+        // Fails only when a global pool already exists (a second run in one
+        // process), which keeps the first setting.
+        let _ = rayon::ThreadPoolBuilder::new().num_threads(p.threads).build_global();
+    }
+    let src_opts = SourceOptions { skip: p.skip, max_frames: p.max_frames, ..SourceOptions::default() };
+    let mut source = open_source(&args.input, &src_opts)?;
+    let (camera, guessed) = resolve_camera(args, source.as_ref())?;
+    let mut opts = p.slam_options();
+    opts.refine_intrinsics |= guessed;
+    let mut slam = Slam::new(opts.clone(), &camera, events)?;
+    tracing::info!("{}", source.describe());
+    let pb = crate::logging::progress_bar(source.len_hint().unwrap_or(0) as u64, quiet, "frames");
+    loop {
+        let t = Instant::now();
+        let next = source.next();
+        slam.timings_mut().add(Stage::Decode, t.elapsed());
+        let Some(frame) = next else { break };
+        let frame = match frame {
+            Ok(f) => f,
+            Err(e) => {
+                tracing::warn!("skipping a frame: {e}");
+                continue;
+            }
+        };
+        slam.process(&frame).with_context(|| format!("processing frame {} ({})", frame.index, frame.name))?;
+        pb.inc(1);
+        pb.set_message(format!("{} kf", slam.num_keyframes()));
+    }
+    pb.finish_and_clear();
+    let mut result = slam.finish()?;
+    let t = Instant::now();
+    let format = if p.text { OutputFormat::Text } else { OutputFormat::Binary };
+    let input = args.input.display().to_string();
+    let mut report = write_outputs(&result, &args.output, &input, &opts, format)?;
+    result.timings.add(Stage::Output, t.elapsed());
+    report.timings_s = result.timings.clone();
+    report.wall_time_s = started.elapsed().as_secs_f64();
+    report.ms_per_frame = if report.frames > 0 { 1e3 * report.wall_time_s / report.frames as f64 } else { 0.0 };
+    write_report(&report, &args.output)?;
+    let eval = match &args.gt {
+        Some(gt) => Some(evaluate(gt, &args.output)?),
+        None => None,
+    };
+    Ok(RunOutcome { report, eval })
+}
+
+/// ATE of `out/trajectory.tum` against `gt`, with a plot beside it.
+pub fn evaluate(gt: &Path, out: &Path) -> Result<colslam_eval::EvalReport> {
+    let est = out.join("trajectory.tum");
+    let report = colslam_eval::evaluate_files(gt, &est, &colslam_eval::EvalOptions::default())?;
+    colslam_eval::plot::plot_evaluation(&report, &out.join("trajectory.eval.png"))?;
+    Ok(report)
+}
+
+/// A short summary table of a run.
+pub fn summary(r: &RunReport) -> String {
+    let t = &r.timings_s;
+    let mut s = String::new();
+    s.push_str(&format!("frames            {:>8}\n", r.frames));
+    s.push_str(&format!("localized         {:>8}  ({:.1} %)\n", r.localized, 100.0 * r.localized_ratio));
+    s.push_str(&format!("keyframes         {:>8}\n", r.keyframes));
+    s.push_str(&format!("maps              {:>8}\n", r.maps.len()));
+    s.push_str(&format!("3D points         {:>8}\n", r.points));
+    s.push_str(&format!("observations      {:>8}\n", r.observations));
+    s.push_str(&format!("mean track length {:>8.2}\n", r.mean_track_length));
+    s.push_str(&format!("mean reproj. err  {:>8.3} px\n", r.mean_reprojection_error));
+    s.push_str(&format!("points per image  {:>8.1}\n", r.points_per_image));
+    s.push_str(&format!(
+        "wall time         {:>8.2} s  ({:.1} ms/frame)\n",
+        r.wall_time_s, r.ms_per_frame
+    ));
+    s.push_str(&format!(
+        "stages (s)        decode {:.2}, features {:.2}, matching {:.2}, keyframe test {:.2}, init {:.2},\n                  registration {:.2}, triangulation {:.2}, local BA {:.2}, global BA {:.2}, localisation {:.2}, output {:.2}",
+        t.decode, t.features, t.matching, t.keyframe_test, t.initialization, t.registration, t.triangulation, t.local_ba,
+        t.global_ba, t.localization, t.output
+    ));
+    for n in &r.notes {
+        s.push_str(&format!("\nnote: {n}"));
+    }
+    s
+}
+
+/// Runs `run`.
+pub fn run(args: &RunArgs, quiet: bool) -> Result<()> {
+    let outcome = run_pipeline(args, quiet, EventSink::none())?;
+    println!("{}", summary(&outcome.report));
+    println!("outputs in {}", args.output.display());
+    if let Some(e) = &outcome.eval {
+        println!("{e}");
+    }
+    Ok(())
+}

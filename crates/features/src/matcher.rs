@@ -1,0 +1,857 @@
+//! Nearest-neighbour descriptor matching: brute force (Hamming distance with
+//! 64-bit popcount for binary descriptors, Euclidean for float ones) and a
+//! guided variant that searches only near a predicted position.
+//!
+//! Filters, applied in this order: maximum distance, Lowe's ratio test (best
+//! against second-best distance; Lowe, IJCV 2004), and cross-check (mutual
+//! nearest neighbours).
+
+use crate::FeatureError;
+use crate::types::{Descriptors, Features, Keypoint, Match, Matcher};
+use rayon::prelude::*;
+
+/// Hamming distance between two 256-bit descriptors.
+#[inline]
+pub fn hamming_distance(a: &[u64; 4], b: &[u64; 4]) -> u32 {
+    (a[0] ^ b[0]).count_ones() + (a[1] ^ b[1]).count_ones() + (a[2] ^ b[2]).count_ones() + (a[3] ^ b[3]).count_ones()
+}
+
+/// Options of [`NnMatcher`].
+#[derive(Debug, Clone, PartialEq)]
+pub struct NnMatcherOptions {
+    /// Keep only mutual nearest neighbours (default true). In guided
+    /// matching, where each query sees only part of the train set, this
+    /// means: of the queries matched to one train feature, keep the closest.
+    pub cross_check: bool,
+    /// Lowe's ratio: keep a match only if `best < max_ratio * second_best`
+    /// (default 0.9). Values >= 1 switch the test off. A query with a single
+    /// candidate passes.
+    pub max_ratio: f32,
+    /// Largest Hamming distance accepted for binary descriptors, in bits out
+    /// of 256 (default 64; ORB-SLAM uses 50 and 100 in its searches).
+    pub max_hamming: u32,
+    /// Largest Euclidean distance accepted for float descriptors (default
+    /// infinity, i.e. off).
+    pub max_l2: f32,
+}
+
+impl Default for NnMatcherOptions {
+    fn default() -> Self {
+        Self { cross_check: true, max_ratio: 0.9, max_hamming: 64, max_l2: f32::INFINITY }
+    }
+}
+
+impl NnMatcherOptions {
+    /// Checks every field.
+    pub fn validate(&self) -> Result<(), FeatureError> {
+        let bad = |reason: String| Err(FeatureError::InvalidOptions { what: "nearest-neighbour matcher", reason });
+        if !(self.max_ratio.is_finite() && self.max_ratio > 0.0) {
+            return bad(format!("max_ratio {} must be finite and positive", self.max_ratio));
+        }
+        if self.max_l2.is_nan() || self.max_l2 < 0.0 {
+            return bad(format!("max_l2 {} must be non-negative", self.max_l2));
+        }
+        Ok(())
+    }
+}
+
+/// Brute-force nearest-neighbour matcher ("nn").
+#[derive(Debug, Clone)]
+pub struct NnMatcher {
+    opts: NnMatcherOptions,
+}
+
+/// Best and second-best candidate of one query in a scan over increasing
+/// train indices (strict comparisons keep the lowest index among ties).
+#[derive(Debug, Clone, Copy)]
+struct Best {
+    d1: u32,
+    d2: u32,
+    i1: u32,
+}
+
+impl Best {
+    const EMPTY: Best = Best { d1: u32::MAX, d2: u32::MAX, i1: u32::MAX };
+
+    /// Offers train `j` at distance `d`; the common case (`d >= d2`) costs
+    /// one compare.
+    #[inline(always)]
+    fn push(&mut self, d: u32, j: usize) {
+        if d < self.d2 {
+            if d < self.d1 {
+                self.d2 = self.d1;
+                self.d1 = d;
+                self.i1 = j as u32;
+            } else {
+                self.d2 = d;
+            }
+        }
+    }
+}
+
+/// Best and second best packed as `(distance << 32) | index`, for scans in
+/// arbitrary index order: one integer comparison orders by distance, then
+/// index, so ties resolve to the lowest index whatever the order.
+#[derive(Debug, Clone, Copy)]
+struct PackedBest {
+    first: u64,
+    second: u64,
+}
+
+const NONE: u64 = u64::MAX;
+
+impl PackedBest {
+    const EMPTY: PackedBest = PackedBest { first: NONE, second: NONE };
+
+    #[inline(always)]
+    fn push(&mut self, v: u64) {
+        if v < self.second {
+            if v < self.first {
+                self.second = self.first;
+                self.first = v;
+            } else {
+                self.second = v;
+            }
+        }
+    }
+}
+
+#[inline(always)]
+fn pack(dist: u32, idx: usize) -> u64 {
+    ((dist as u64) << 32) | idx as u64
+}
+
+/// Queries per block of the brute-force kernel: each train descriptor is
+/// loaded once per block.
+const QUERY_BLOCK: usize = 4;
+/// Queries per rayon task.
+const QUERIES_PER_TASK: usize = 64;
+
+/// Offers query `qi` at distance `d` as the reverse nearest neighbour of a
+/// train row (packed; the comparison is exact whatever the query order).
+#[inline(always)]
+fn offer_rev(r: &mut u64, d: u32, qi: usize) {
+    // Cheap pre-test on the distance alone; rarely true after a few rows.
+    if (d as u64) <= (*r >> 32) {
+        *r = (*r).min(pack(d, qi));
+    }
+}
+
+/// Forward nearest neighbours of the queries `q` (global indices from
+/// `first`) and, in `rev`, every train row's nearest query so far.
+#[inline(always)]
+fn brute_force_block(q: &[[u64; 4]], first: usize, train: &[[u64; 4]], best: &mut [Best], rev: &mut [u64]) {
+    let mut base = first;
+    for (qb, bb) in q.chunks(QUERY_BLOCK).zip(best.chunks_mut(QUERY_BLOCK)) {
+        if let ([q0, q1, q2, q3], [b0, b1, b2, b3]) = (qb, &mut *bb) {
+            for (j, (t, r)) in train.iter().zip(rev.iter_mut()).enumerate() {
+                let d0 = hamming_distance(q0, t);
+                let d1 = hamming_distance(q1, t);
+                let d2 = hamming_distance(q2, t);
+                let d3 = hamming_distance(q3, t);
+                b0.push(d0, j);
+                b1.push(d1, j);
+                b2.push(d2, j);
+                b3.push(d3, j);
+                let dm = d0.min(d1).min(d2).min(d3);
+                if (dm as u64) <= (*r >> 32) {
+                    // Lowest query index of the block reaching the minimum.
+                    let k = if d0 == dm {
+                        0
+                    } else if d1 == dm {
+                        1
+                    } else if d2 == dm {
+                        2
+                    } else {
+                        3
+                    };
+                    *r = (*r).min(pack(dm, base + k));
+                }
+            }
+        } else {
+            for (k, (qd, b)) in qb.iter().zip(bb.iter_mut()).enumerate() {
+                for (j, (t, r)) in train.iter().zip(rev.iter_mut()).enumerate() {
+                    let d = hamming_distance(qd, t);
+                    b.push(d, j);
+                    offer_rev(r, d, base + k);
+                }
+            }
+        }
+        base += qb.len();
+    }
+}
+
+/// Train descriptors stored word-major (structure of arrays), so that one
+/// query against consecutive train rows is a vectorisable loop.
+struct TrainSoa {
+    w: [Vec<u64>; 4],
+}
+
+impl TrainSoa {
+    fn new(train: &[[u64; 4]]) -> Self {
+        Self { w: std::array::from_fn(|k| train.iter().map(|t| t[k]).collect()) }
+    }
+}
+
+/// Lanes of the per-lane two-smallest reduction.
+const LANES: usize = 8;
+
+/// Vectorisable kernel: for each query, all distances packed with the train
+/// index (`(d << 32) | j`) in one pass, the reverse minima in a second pass,
+/// and the two smallest keys by a per-lane reduction. Compiled for AVX-512
+/// (VPOPCNTQ) or AVX2 (LLVM's shuffle-based vector popcount) by the
+/// wrappers below.
+#[inline(always)]
+fn soa_kernel(q: &[[u64; 4]], first: usize, t: &TrainSoa, best: &mut [Best], rev: &mut [u64]) {
+    let n = t.w[0].len();
+    let [w0, w1, w2, w3] = [&t.w[0][..n], &t.w[1][..n], &t.w[2][..n], &t.w[3][..n]];
+    let rev = &mut rev[..n];
+    let mut keys = vec![0u64; n];
+    for (k, (qd, b)) in q.iter().zip(best.iter_mut()).enumerate() {
+        let qi = (first + k) as u64;
+        for j in 0..n {
+            let d = (qd[0] ^ w0[j]).count_ones()
+                + (qd[1] ^ w1[j]).count_ones()
+                + (qd[2] ^ w2[j]).count_ones()
+                + (qd[3] ^ w3[j]).count_ones();
+            keys[j] = ((d as u64) << 32) | j as u64;
+        }
+        for (r, &key) in rev.iter_mut().zip(&keys) {
+            *r = (*r).min((key & !0xffff_ffff) | qi);
+        }
+        let mut m1 = [NONE; LANES];
+        let mut m2 = [NONE; LANES];
+        let mut chunks = keys.chunks_exact(LANES);
+        for c in &mut chunks {
+            for l in 0..LANES {
+                let v = c[l];
+                let hi = m1[l].max(v);
+                m1[l] = m1[l].min(v);
+                m2[l] = m2[l].min(hi);
+            }
+        }
+        let mut top = PackedBest::EMPTY;
+        for v in m1.into_iter().chain(m2).chain(chunks.remainder().iter().copied()) {
+            top.push(v);
+        }
+        if top.first != NONE {
+            *b = Best {
+                d1: (top.first >> 32) as u32,
+                i1: (top.first & 0xffff_ffff) as u32,
+                d2: if top.second == NONE { u32::MAX } else { (top.second >> 32) as u32 },
+            };
+        }
+    }
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f,avx512bw,avx512vl,avx512vpopcntdq,popcnt")]
+fn soa_kernel_avx512(q: &[[u64; 4]], first: usize, t: &TrainSoa, best: &mut [Best], rev: &mut [u64]) {
+    soa_kernel(q, first, t, best, rev)
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,popcnt")]
+fn soa_kernel_avx2(q: &[[u64; 4]], first: usize, t: &TrainSoa, best: &mut [Best], rev: &mut [u64]) {
+    soa_kernel(q, first, t, best, rev)
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "popcnt")]
+fn brute_force_block_popcnt(q: &[[u64; 4]], first: usize, train: &[[u64; 4]], best: &mut [Best], rev: &mut [u64]) {
+    brute_force_block(q, first, train, best, rev)
+}
+
+/// Which build of the brute-force kernel runs.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Kernel {
+    /// AVX-512 with VPOPCNTQ, structure-of-arrays kernel.
+    Avx512,
+    /// AVX2 (vector popcount by byte shuffles), structure-of-arrays kernel.
+    Avx2,
+    /// Scalar POPCNT, 4 queries per train load.
+    Popcnt,
+    /// Portable scalar code.
+    Generic,
+}
+
+impl Kernel {
+    /// The fastest kernel this CPU supports.
+    fn detect() -> Kernel {
+        #[cfg(target_arch = "x86_64")]
+        {
+            use std::arch::is_x86_feature_detected as has;
+            if has!("avx512f") && has!("avx512bw") && has!("avx512vl") && has!("avx512vpopcntdq") && has!("popcnt") {
+                return Kernel::Avx512;
+            }
+            if has!("avx2") && has!("popcnt") {
+                return Kernel::Avx2;
+            }
+            if has!("popcnt") {
+                return Kernel::Popcnt;
+            }
+        }
+        Kernel::Generic
+    }
+
+    /// Kernels usable on this CPU, fastest first (for tests).
+    #[cfg(test)]
+    fn available() -> Vec<Kernel> {
+        let all = [Kernel::Avx512, Kernel::Avx2, Kernel::Popcnt, Kernel::Generic];
+        let first = all.iter().position(|&k| k == Kernel::detect()).unwrap_or(3);
+        let mut v: Vec<Kernel> = all[first..].to_vec();
+        // AVX-512 implies AVX2 and POPCNT on every CPU that has it, but check.
+        #[cfg(target_arch = "x86_64")]
+        v.retain(|k| match k {
+            Kernel::Avx2 => std::arch::is_x86_feature_detected!("avx2"),
+            Kernel::Popcnt | Kernel::Avx512 => std::arch::is_x86_feature_detected!("popcnt"),
+            Kernel::Generic => true,
+        });
+        v
+    }
+
+    fn run(self, q: &[[u64; 4]], first: usize, train: &[[u64; 4]], soa: &TrainSoa, best: &mut [Best], rev: &mut [u64]) {
+        match self {
+            #[cfg(target_arch = "x86_64")]
+            // SAFETY: `Kernel::detect` (or `available`) chose this variant
+            // only after checking at run time that the CPU has every feature
+            // the function is compiled for, the only requirement of a
+            // `target_feature` function.
+            Kernel::Avx512 => unsafe { soa_kernel_avx512(q, first, soa, best, rev) },
+            #[cfg(target_arch = "x86_64")]
+            // SAFETY: as above, AVX2 and POPCNT were detected.
+            Kernel::Avx2 => unsafe { soa_kernel_avx2(q, first, soa, best, rev) },
+            #[cfg(target_arch = "x86_64")]
+            // SAFETY: as above, POPCNT was detected.
+            Kernel::Popcnt => unsafe { brute_force_block_popcnt(q, first, train, best, rev) },
+            _ => brute_force_block(q, first, train, best, rev),
+        }
+    }
+}
+
+/// For each query its best/second-best train and, for each train, the best
+/// query (packed). Parallel over blocks of queries; the reverse minima are
+/// merged with `min` on packed values, which is associative and commutative,
+/// so the result does not depend on the thread count.
+fn nn_binary(query: &[[u64; 4]], train: &[[u64; 4]], kernel: Kernel) -> (Vec<Best>, Vec<u64>) {
+    let mut best = vec![Best::EMPTY; query.len()];
+    let soa = match kernel {
+        Kernel::Avx512 | Kernel::Avx2 => TrainSoa::new(train),
+        _ => TrainSoa { w: Default::default() },
+    };
+    let rev = query
+        .par_chunks(QUERIES_PER_TASK)
+        .zip(best.par_chunks_mut(QUERIES_PER_TASK))
+        .enumerate()
+        .fold(
+            || vec![NONE; train.len()],
+            |mut rev, (chunk, (q, b))| {
+                kernel.run(q, chunk * QUERIES_PER_TASK, train, &soa, b, &mut rev);
+                rev
+            },
+        )
+        .reduce(
+            || vec![NONE; train.len()],
+            |mut a, b| {
+                for (x, y) in a.iter_mut().zip(b) {
+                    *x = (*x).min(y);
+                }
+                a
+            },
+        );
+    (best, rev)
+}
+
+/// Squared Euclidean distance.
+#[inline]
+fn l2_sq(a: &[f32], b: &[f32]) -> f32 {
+    a.iter().zip(b).map(|(x, y)| (x - y) * (x - y)).sum()
+}
+
+impl NnMatcher {
+    /// Makes a matcher after validating the options.
+    pub fn new(opts: NnMatcherOptions) -> Result<Self, FeatureError> {
+        opts.validate()?;
+        Ok(Self { opts })
+    }
+
+    /// The options in use.
+    pub fn options(&self) -> &NnMatcherOptions {
+        &self.opts
+    }
+
+    fn ratio_ok(&self, d1: f32, d2: Option<f32>) -> bool {
+        if self.opts.max_ratio >= 1.0 {
+            return true;
+        }
+        match d2 {
+            Some(d2) => d1 < self.opts.max_ratio * d2,
+            None => true,
+        }
+    }
+
+    /// Brute-force matching of binary descriptors (all query rows against all
+    /// train rows). Sorted by query index.
+    pub fn match_binary(&self, query: &[[u64; 4]], train: &[[u64; 4]]) -> Vec<Match> {
+        self.match_binary_with(query, train, Kernel::detect())
+    }
+
+    fn match_binary_with(&self, query: &[[u64; 4]], train: &[[u64; 4]], kernel: Kernel) -> Vec<Match> {
+        if query.is_empty() || train.is_empty() {
+            return Vec::new();
+        }
+        let (best, rev) = nn_binary(query, train, kernel);
+        best.iter()
+            .enumerate()
+            .filter_map(|(i, b)| {
+                if b.d1 == u32::MAX {
+                    return None;
+                }
+                let j = b.i1 as usize;
+                let d1 = b.d1;
+                let d2 = (b.d2 != u32::MAX).then_some(b.d2 as f32);
+                if d1 > self.opts.max_hamming || !self.ratio_ok(d1 as f32, d2) {
+                    return None;
+                }
+                if self.opts.cross_check && rev.get(j).map(|r| (r & 0xffff_ffff) as usize) != Some(i) {
+                    return None;
+                }
+                Some(Match { query: i as u32, train: j as u32, distance: d1 as f32 })
+            })
+            .collect()
+    }
+
+    /// Brute-force matching of float descriptors (Euclidean distance).
+    pub fn match_float(&self, dim: usize, query: &[f32], train: &[f32]) -> Result<Vec<Match>, FeatureError> {
+        if dim == 0 {
+            return Err(FeatureError::DescriptorMismatch("float descriptors with dim 0".into()));
+        }
+        if !query.len().is_multiple_of(dim) || !train.len().is_multiple_of(dim) {
+            return Err(FeatureError::DescriptorMismatch(format!(
+                "float buffers of {} and {} values are not whole {dim}-dimensional rows",
+                query.len(),
+                train.len()
+            )));
+        }
+        let nn = |a: &[f32], b: &[f32]| -> Vec<(usize, f32, Option<f32>)> {
+            a.par_chunks(dim)
+                .map(|q| {
+                    let (mut bi, mut b1, mut b2) = (usize::MAX, f32::INFINITY, f32::INFINITY);
+                    for (j, t) in b.chunks(dim).enumerate() {
+                        let d = l2_sq(q, t);
+                        if d < b1 {
+                            b2 = b1;
+                            b1 = d;
+                            bi = j;
+                        } else if d < b2 {
+                            b2 = d;
+                        }
+                    }
+                    (bi, b1.sqrt(), b2.is_finite().then(|| b2.sqrt()))
+                })
+                .collect()
+        };
+        let fwd = nn(query, train);
+        let rev = if self.opts.cross_check { nn(train, query) } else { Vec::new() };
+        Ok(fwd
+            .iter()
+            .enumerate()
+            .filter_map(|(i, &(j, d1, d2))| {
+                if j == usize::MAX || d1 > self.opts.max_l2 || !self.ratio_ok(d1, d2) {
+                    return None;
+                }
+                if self.opts.cross_check && rev.get(j).map(|r| r.0) != Some(i) {
+                    return None;
+                }
+                Some(Match { query: i as u32, train: j as u32, distance: d1 })
+            })
+            .collect())
+    }
+
+    /// Guided matching of binary features: query `i` is compared only with
+    /// train keypoints within `radius` pixels of `predicted[i]` (no search
+    /// when `None`). Uses a grid index over the train keypoints with cells of
+    /// `radius` pixels. Distance and ratio filters as in brute force (the
+    /// ratio is taken among the candidates in the radius); with cross-check
+    /// each train feature keeps only its closest query (ties: lowest index).
+    pub fn match_guided(
+        &self,
+        query: &Features,
+        train: &Features,
+        predicted: &[Option<[f32; 2]>],
+        radius: f32,
+    ) -> Result<Vec<Match>, FeatureError> {
+        query.validate()?;
+        train.validate()?;
+        if predicted.len() != query.len() {
+            return Err(FeatureError::PredictionCount { predictions: predicted.len(), queries: query.len() });
+        }
+        if !(radius.is_finite() && radius > 0.0) {
+            return Err(FeatureError::InvalidOptions {
+                what: "guided matching",
+                reason: format!("radius {radius} must be finite and positive"),
+            });
+        }
+        let (Descriptors::Binary(qd), Descriptors::Binary(td)) = (&query.descriptors, &train.descriptors) else {
+            return Err(FeatureError::DescriptorMismatch("guided matching needs binary descriptors on both sides".into()));
+        };
+        let grid = Grid::new(&train.keypoints, radius);
+        let r2 = radius * radius;
+        let mut matches: Vec<Match> = predicted
+            .par_iter()
+            .zip(qd.par_iter())
+            .enumerate()
+            .filter_map(|(i, (p, q))| {
+                let [px, py] = (*p)?;
+                if !(px.is_finite() && py.is_finite()) {
+                    return None;
+                }
+                let mut b = PackedBest::EMPTY;
+                grid.for_each_near(px, py, |j| {
+                    let (Some(k), Some(t)) = (train.keypoints.get(j), td.get(j)) else { return };
+                    let (dx, dy) = (k.x - px, k.y - py);
+                    if dx * dx + dy * dy <= r2 {
+                        b.push(pack(hamming_distance(q, t), j));
+                    }
+                });
+                if b.first == NONE {
+                    return None;
+                }
+                let d1 = (b.first >> 32) as u32;
+                let d2 = (b.second != NONE).then_some((b.second >> 32) as f32);
+                if d1 > self.opts.max_hamming || !self.ratio_ok(d1 as f32, d2) {
+                    return None;
+                }
+                Some(Match { query: i as u32, train: (b.first & 0xffff_ffff) as u32, distance: d1 as f32 })
+            })
+            .collect();
+        if self.opts.cross_check {
+            let mut owner = vec![NONE; train.len()];
+            for m in &matches {
+                if let Some(o) = owner.get_mut(m.train as usize) {
+                    *o = (*o).min(pack(m.distance as u32, m.query as usize));
+                }
+            }
+            matches.retain(|m| owner.get(m.train as usize).map(|o| (o & 0xffff_ffff) as u32) == Some(m.query));
+        }
+        Ok(matches)
+    }
+}
+
+impl Matcher for NnMatcher {
+    fn name(&self) -> &str {
+        "nn"
+    }
+
+    fn match_features(&self, a: &Features, b: &Features) -> Result<Vec<Match>, FeatureError> {
+        a.validate()?;
+        b.validate()?;
+        match (&a.descriptors, &b.descriptors) {
+            (Descriptors::Binary(q), Descriptors::Binary(t)) => Ok(self.match_binary(q, t)),
+            (Descriptors::Float { dim: da, data: q }, Descriptors::Float { dim: db, data: t }) => {
+                if da != db {
+                    return Err(FeatureError::DescriptorMismatch(format!(
+                        "float descriptors of dimension {da} and {db}"
+                    )));
+                }
+                if q.is_empty() || t.is_empty() {
+                    return Ok(Vec::new());
+                }
+                self.match_float(*da, q, t)
+            }
+            _ => Err(FeatureError::DescriptorMismatch("cannot match binary against float descriptors".into())),
+        }
+    }
+}
+
+/// Uniform grid over keypoint positions (compressed rows: `start[c]..start[c+1]`
+/// indexes `items` for cell c).
+struct Grid {
+    x0: f32,
+    y0: f32,
+    cell: f32,
+    cols: usize,
+    rows: usize,
+    start: Vec<usize>,
+    items: Vec<usize>,
+}
+
+/// Most cells per grid side; a sparse, huge grid would waste memory.
+const MAX_GRID_SIDE: usize = 1024;
+
+impl Grid {
+    fn new(kps: &[Keypoint], cell: f32) -> Self {
+        let finite = || kps.iter().filter(|k| k.x.is_finite() && k.y.is_finite());
+        let (mut x0, mut y0, mut x1, mut y1) = (f32::INFINITY, f32::INFINITY, f32::NEG_INFINITY, f32::NEG_INFINITY);
+        for k in finite() {
+            x0 = x0.min(k.x);
+            y0 = y0.min(k.y);
+            x1 = x1.max(k.x);
+            y1 = y1.max(k.y);
+        }
+        if x0 > x1 {
+            return Grid { x0: 0.0, y0: 0.0, cell, cols: 0, rows: 0, start: vec![0], items: Vec::new() };
+        }
+        let side = |lo: f32, hi: f32, c: f32| (((hi - lo) / c) as usize + 1).min(MAX_GRID_SIDE);
+        // Enlarge cells when the extent would need too many of them.
+        let cell = cell.max((x1 - x0) / MAX_GRID_SIDE as f32).max((y1 - y0) / MAX_GRID_SIDE as f32);
+        let (cols, rows) = (side(x0, x1, cell), side(y0, y1, cell));
+        let cell_of = |k: &Keypoint| {
+            let c = (((k.x - x0) / cell) as usize).min(cols - 1);
+            let r = (((k.y - y0) / cell) as usize).min(rows - 1);
+            r * cols + c
+        };
+        let mut start = vec![0usize; cols * rows + 1];
+        for k in finite() {
+            if let Some(s) = start.get_mut(cell_of(k) + 1) {
+                *s += 1;
+            }
+        }
+        for c in 0..cols * rows {
+            let prev = start.get(c).copied().unwrap_or(0);
+            if let Some(s) = start.get_mut(c + 1) {
+                *s += prev;
+            }
+        }
+        let mut fill = start.clone();
+        let mut items = vec![0usize; start.last().copied().unwrap_or(0)];
+        for (i, k) in kps.iter().enumerate() {
+            if !(k.x.is_finite() && k.y.is_finite()) {
+                continue;
+            }
+            if let Some(f) = fill.get_mut(cell_of(k))
+                && let Some(slot) = items.get_mut(*f)
+            {
+                *slot = i;
+                *f += 1;
+            }
+        }
+        Grid { x0, y0, cell, cols, rows, start, items }
+    }
+
+    /// Calls `f` with every item in the cells overlapping the square of half
+    /// side `cell` around (x, y) (a superset of the disc of that radius).
+    fn for_each_near(&self, x: f32, y: f32, mut f: impl FnMut(usize)) {
+        if self.cols == 0 {
+            return;
+        }
+        let lo = |v: f32, o: f32| ((v - self.cell - o) / self.cell).floor();
+        let hi = |v: f32, o: f32| ((v + self.cell - o) / self.cell).floor();
+        let (c0, c1) = (lo(x, self.x0), hi(x, self.x0));
+        let (r0, r1) = (lo(y, self.y0), hi(y, self.y0));
+        if c1 < 0.0 || r1 < 0.0 || c0 >= self.cols as f32 || r0 >= self.rows as f32 {
+            return;
+        }
+        let c0 = c0.max(0.0) as usize;
+        let r0 = r0.max(0.0) as usize;
+        let c1 = (c1 as usize).min(self.cols - 1);
+        let r1 = (r1 as usize).min(self.rows - 1);
+        for r in r0..=r1 {
+            let (Some(&s), Some(&e)) = (self.start.get(r * self.cols + c0), self.start.get(r * self.cols + c1 + 1))
+            else {
+                continue;
+            };
+            for &i in self.items.get(s..e).unwrap_or(&[]) {
+                f(i);
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn naive_hamming(a: &[u64; 4], b: &[u64; 4]) -> u32 {
+        let mut n = 0;
+        for bit in 0..256 {
+            let x = (a[bit / 64] >> (bit % 64)) & 1;
+            let y = (b[bit / 64] >> (bit % 64)) & 1;
+            n += (x != y) as u32;
+        }
+        n
+    }
+
+    fn rng_desc(state: &mut u64) -> [u64; 4] {
+        let mut next = || {
+            *state = state.wrapping_add(0x9E37_79B9_7F4A_7C15);
+            let mut z = *state;
+            z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+            z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+            z ^ (z >> 31)
+        };
+        [next(), next(), next(), next()]
+    }
+
+    #[test]
+    fn hamming_matches_bitwise_definition() {
+        let mut s = 7;
+        for _ in 0..200 {
+            let (a, b) = (rng_desc(&mut s), rng_desc(&mut s));
+            assert_eq!(hamming_distance(&a, &b), naive_hamming(&a, &b));
+        }
+        assert_eq!(hamming_distance(&[0; 4], &[u64::MAX; 4]), 256);
+        assert_eq!(hamming_distance(&[5; 4], &[5; 4]), 0);
+    }
+
+    /// Naive O(n m) reference for the brute-force matcher.
+    fn naive_match(q: &[[u64; 4]], t: &[[u64; 4]], o: &NnMatcherOptions) -> Vec<Match> {
+        let nn = |a: &[u64; 4], set: &[[u64; 4]]| {
+            let mut d: Vec<(u32, usize)> = set.iter().enumerate().map(|(j, x)| (naive_hamming(a, x), j)).collect();
+            d.sort();
+            d
+        };
+        let mut out = Vec::new();
+        for (i, a) in q.iter().enumerate() {
+            let d = nn(a, t);
+            let (d1, j) = d[0];
+            if d1 > o.max_hamming {
+                continue;
+            }
+            if o.max_ratio < 1.0 && d.len() > 1 && (d1 as f32) >= o.max_ratio * d[1].0 as f32 {
+                continue;
+            }
+            if o.cross_check && nn(&t[j], q)[0].1 != i {
+                continue;
+            }
+            out.push(Match { query: i as u32, train: j as u32, distance: d1 as f32 });
+        }
+        out
+    }
+
+    #[test]
+    fn brute_force_equals_naive_for_all_option_combinations() {
+        let mut s = 99;
+        let train: Vec<[u64; 4]> = (0..150).map(|_| rng_desc(&mut s)).collect();
+        // Queries: noisy copies of some train rows, plus unrelated rows; 203
+        // is not a multiple of the 4-query block.
+        let mut query = Vec::new();
+        for i in 0..203 {
+            if i % 3 == 0 {
+                query.push(rng_desc(&mut s));
+            } else {
+                let mut d = train[(i * 7) % 150];
+                let noise = rng_desc(&mut s);
+                d[0] ^= noise[0] & noise[1] & noise[2]; // ~8 flipped bits
+                query.push(d);
+            }
+        }
+        for cross_check in [false, true] {
+            for max_ratio in [1.0, 0.8] {
+                for max_hamming in [256, 40] {
+                    let o = NnMatcherOptions { cross_check, max_ratio, max_hamming, ..Default::default() };
+                    let m = NnMatcher::new(o.clone()).unwrap();
+                    let want = naive_match(&query, &train, &o);
+                    assert!(!want.is_empty());
+                    for kernel in Kernel::available() {
+                        // Also a train set that is not a multiple of the lanes.
+                        let got = m.match_binary_with(&query, &train, kernel);
+                        assert_eq!(got, want, "{o:?} {kernel:?}");
+                        let got = m.match_binary_with(&query, &train[..147], kernel);
+                        assert_eq!(got, naive_match(&query, &train[..147], &o), "{o:?} {kernel:?}");
+                    }
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn options_behave_as_documented() {
+        // Two train rows equally close to the query: the ratio test rejects.
+        let q = [[0u64; 4]];
+        let t = [[0b11, 0, 0, 0], [0b1100, 0, 0, 0], [u64::MAX; 4]];
+        let plain = NnMatcher::new(NnMatcherOptions { cross_check: false, max_ratio: 1.0, ..Default::default() }).unwrap();
+        let m = plain.match_binary(&q, &t);
+        assert_eq!(m, vec![Match { query: 0, train: 0, distance: 2.0 }]); // tie -> lowest index
+        let ratio = NnMatcher::new(NnMatcherOptions { cross_check: false, max_ratio: 0.8, ..Default::default() }).unwrap();
+        assert!(ratio.match_binary(&q, &t).is_empty());
+        // Max distance.
+        let strict = NnMatcher::new(NnMatcherOptions { max_hamming: 1, max_ratio: 1.0, ..Default::default() }).unwrap();
+        assert!(strict.match_binary(&q, &t).is_empty());
+        // Cross-check: two queries share the same nearest train; only the
+        // closer one survives.
+        let q2 = [[0b1, 0, 0, 0], [0b111, 0, 0, 0]];
+        let t2 = [[0u64; 4], [u64::MAX; 4]];
+        let cc = NnMatcher::new(NnMatcherOptions { max_ratio: 1.0, ..Default::default() }).unwrap();
+        assert_eq!(cc.match_binary(&q2, &t2), vec![Match { query: 0, train: 0, distance: 1.0 }]);
+        assert_eq!(plain.match_binary(&q2, &t2).len(), 2);
+        // Empty inputs.
+        assert!(cc.match_binary(&[], &t2).is_empty());
+        assert!(cc.match_binary(&q2, &[]).is_empty());
+        // Invalid options.
+        assert!(NnMatcher::new(NnMatcherOptions { max_ratio: 0.0, ..Default::default() }).is_err());
+        assert!(NnMatcher::new(NnMatcherOptions { max_l2: f32::NAN, ..Default::default() }).is_err());
+    }
+
+    fn kp(x: f32, y: f32) -> Keypoint {
+        Keypoint { x, y, octave: 0, angle: 0.0, response: 0.0, size: 31.0 }
+    }
+
+    #[test]
+    fn guided_matching_searches_only_near_the_prediction() {
+        let mut s = 5;
+        let d: Vec<[u64; 4]> = (0..3).map(|_| rng_desc(&mut s)).collect();
+        let train = Features {
+            keypoints: vec![kp(10.0, 10.0), kp(100.0, 100.0), kp(300.0, 50.0)],
+            descriptors: Descriptors::Binary(d.clone()),
+        };
+        let query = Features {
+            keypoints: vec![kp(0.0, 0.0), kp(0.0, 0.0), kp(0.0, 0.0)],
+            descriptors: Descriptors::Binary(d.clone()),
+        };
+        let m = NnMatcher::new(NnMatcherOptions::default()).unwrap();
+        // Query 0 predicted near train 0, query 1 predicted far from train 1,
+        // query 2 without a prediction.
+        let pred = [Some([12.0, 9.0]), Some([200.0, 200.0]), None];
+        let got = m.match_guided(&query, &train, &pred, 8.0).unwrap();
+        assert_eq!(got, vec![Match { query: 0, train: 0, distance: 0.0 }]);
+        // A wide radius finds query 1's true match.
+        let got = m.match_guided(&query, &train, &[None, Some([200.0, 200.0]), None], 150.0).unwrap();
+        assert_eq!(got, vec![Match { query: 1, train: 1, distance: 0.0 }]);
+        // Errors: wrong prediction count, bad radius, float descriptors.
+        assert!(matches!(
+            m.match_guided(&query, &train, &pred[..2], 8.0),
+            Err(FeatureError::PredictionCount { predictions: 2, queries: 3 })
+        ));
+        assert!(m.match_guided(&query, &train, &pred, 0.0).is_err());
+        assert!(m.match_guided(&query, &train, &pred, f32::NAN).is_err());
+        let float = Features { keypoints: vec![kp(0.0, 0.0)], descriptors: Descriptors::Float { dim: 2, data: vec![0.0; 2] } };
+        assert!(m.match_guided(&float, &float, &[None], 4.0).is_err());
+    }
+
+    #[test]
+    fn guided_equals_brute_force_with_a_huge_radius() {
+        let mut s = 11;
+        let n = 120;
+        let t: Vec<[u64; 4]> = (0..n).map(|_| rng_desc(&mut s)).collect();
+        let q: Vec<[u64; 4]> = (0..n).map(|i| if i % 2 == 0 { t[(i * 13) % n] } else { rng_desc(&mut s) }).collect();
+        let kps: Vec<Keypoint> = (0..n).map(|i| kp((i * 37 % 640) as f32, (i * 91 % 480) as f32)).collect();
+        let a = Features { keypoints: kps.clone(), descriptors: Descriptors::Binary(q.clone()) };
+        let b = Features { keypoints: kps, descriptors: Descriptors::Binary(t.clone()) };
+        let m = NnMatcher::new(NnMatcherOptions { cross_check: false, ..Default::default() }).unwrap();
+        let pred = vec![Some([320.0, 240.0]); n];
+        assert_eq!(m.match_guided(&a, &b, &pred, 2000.0).unwrap(), m.match_binary(&q, &t));
+    }
+
+    #[test]
+    fn float_matching_and_mismatches() {
+        let m = NnMatcher::new(NnMatcherOptions::default()).unwrap();
+        let a = Features {
+            keypoints: vec![kp(0.0, 0.0), kp(1.0, 1.0)],
+            descriptors: Descriptors::Float { dim: 2, data: vec![0.0, 0.0, 10.0, 10.0] },
+        };
+        let b = Features {
+            keypoints: vec![kp(0.0, 0.0), kp(1.0, 1.0)],
+            descriptors: Descriptors::Float { dim: 2, data: vec![10.0, 11.0, 0.0, 1.0] },
+        };
+        let got = m.match_features(&a, &b).unwrap();
+        assert_eq!(got, vec![Match { query: 0, train: 1, distance: 1.0 }, Match { query: 1, train: 0, distance: 1.0 }]);
+        let bin = Features { keypoints: vec![kp(0.0, 0.0)], descriptors: Descriptors::Binary(vec![[0; 4]]) };
+        assert!(matches!(m.match_features(&a, &bin), Err(FeatureError::DescriptorMismatch(_))));
+        let c = Features { keypoints: vec![kp(0.0, 0.0)], descriptors: Descriptors::Float { dim: 3, data: vec![0.0; 3] } };
+        assert!(m.match_features(&a, &c).is_err());
+        // Inconsistent: 2 keypoints, 1 descriptor.
+        let bad = Features { keypoints: vec![kp(0.0, 0.0); 2], descriptors: Descriptors::Binary(vec![[0; 4]]) };
+        assert!(matches!(m.match_features(&bad, &bin), Err(FeatureError::InconsistentFeatures { .. })));
+    }
+}

@@ -1,0 +1,62 @@
+//! Errors of the SLAM pipeline.
+
+use std::path::PathBuf;
+
+/// Errors of the SLAM pipeline. Conditions a run survives (a frame that
+/// cannot be localised, a lost map) are reported, not raised.
+#[derive(Debug, thiserror::Error)]
+pub enum SlamError {
+    /// An option is out of range.
+    #[error("invalid option {name} = {value}: {reason}")]
+    InvalidOption {
+        /// Option name (as on the command line).
+        name: &'static str,
+        /// Its value.
+        value: String,
+        /// Why.
+        reason: String,
+    },
+    /// The camera is unusable.
+    #[error("camera: {0}")]
+    Camera(#[from] colslam_camera::CameraError),
+    /// A frame's size differs from the camera's.
+    #[error("frame {name} is {width}x{height} but the camera is {cam_width}x{cam_height}")]
+    FrameSize {
+        /// Frame name.
+        name: String,
+        /// Frame width.
+        width: usize,
+        /// Frame height.
+        height: usize,
+        /// Camera width.
+        cam_width: u64,
+        /// Camera height.
+        cam_height: u64,
+    },
+    /// Feature extraction or matching failed.
+    #[error("features: {0}")]
+    Features(#[from] colslam_features::FeatureError),
+    /// The input could not be read.
+    #[error(transparent)]
+    Source(#[from] colslam_io::SourceError),
+    /// An error of the SfM layer.
+    #[error(transparent)]
+    Sfm(#[from] colslam_sfm::SfmError),
+    /// An error of the scene layer.
+    #[error(transparent)]
+    Scene(#[from] colslam_scene::SceneError),
+    /// Writing an output failed.
+    #[error("{path}: {source}")]
+    Io {
+        /// The file or folder.
+        path: PathBuf,
+        /// The underlying error.
+        source: std::io::Error,
+    },
+    /// Writing a trajectory failed.
+    #[error(transparent)]
+    Trajectory(#[from] colslam_eval::EvalError),
+    /// Serialising the report failed.
+    #[error("report: {0}")]
+    Json(#[from] serde_json::Error),
+}

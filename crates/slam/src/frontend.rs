@@ -1,0 +1,172 @@
+//! The frontend: features of each frame (paper 3.1), their undistorted
+//! normalised coordinates, colours, and matching between frames.
+
+use crate::{SlamError, SlamOptions};
+use colslam_camera::{Camera, PixelConvention};
+use colslam_features::{
+    extractor_by_name, matcher_by_name, Descriptors, ExtractorOptions, FeatureExtractor, Features, Match, Matcher,
+    MatcherOptions,
+};
+use colslam_geometry::Vec2;
+use colslam_image::Image;
+use colslam_io::Frame;
+
+/// A frame's features, ready for mapping.
+#[derive(Debug, Clone)]
+pub struct FrameData {
+    /// Frame index (after skip).
+    pub index: usize,
+    /// Timestamp, seconds.
+    pub timestamp: f64,
+    /// Frame name (used as the image name in the model).
+    pub name: String,
+    /// Keypoints and descriptors (keypoints that cannot be undistorted are
+    /// dropped, so every index below is valid).
+    pub features: Features,
+    /// Keypoint positions in COLMAP's pixel convention (centre of the
+    /// top-left pixel at (0.5, 0.5)).
+    pub pixels: Vec<Vec2>,
+    /// Undistorted normalised image-plane coordinates.
+    pub normalized: Vec<Vec2>,
+    /// RGB colour at each keypoint.
+    pub colors: Vec<[u8; 3]>,
+}
+
+impl FrameData {
+    /// Number of keypoints.
+    pub fn len(&self) -> usize {
+        self.pixels.len()
+    }
+
+    /// True without keypoints.
+    pub fn is_empty(&self) -> bool {
+        self.pixels.is_empty()
+    }
+}
+
+/// Feature extraction and matching with the chosen extractor and matcher.
+pub struct Frontend {
+    extractor: Box<dyn FeatureExtractor>,
+    matcher: Box<dyn Matcher>,
+    /// The camera in COLMAP's pixel convention (as stored in the model).
+    camera: Camera,
+}
+
+impl std::fmt::Debug for Frontend {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "Frontend({}, {})", self.extractor.name(), self.matcher.name())
+    }
+}
+
+fn keep_rows(desc: &Descriptors, keep: &[bool]) -> Descriptors {
+    match desc {
+        Descriptors::Binary(v) => {
+            Descriptors::Binary(v.iter().zip(keep).filter(|(_, k)| **k).map(|(d, _)| *d).collect())
+        }
+        Descriptors::Float { dim, data } => {
+            let data = data
+                .chunks_exact((*dim).max(1))
+                .zip(keep)
+                .filter(|(_, k)| **k)
+                .flat_map(|(d, _)| d.iter().copied())
+                .collect();
+            Descriptors::Float { dim: *dim, data }
+        }
+    }
+}
+
+impl Frontend {
+    /// Builds the frontend for `camera_opencv`, a calibration in OpenCV's
+    /// pixel convention (as camera files, TUM and KITTI give it).
+    pub fn new(options: &SlamOptions, camera_opencv: &Camera) -> Result<Self, SlamError> {
+        camera_opencv.validate()?;
+        let mut eo = ExtractorOptions::default();
+        eo.orb.n_features = options.num_features;
+        let extractor = extractor_by_name(&options.features, &eo)?;
+        let matcher = matcher_by_name(&options.matcher, &MatcherOptions::default())?;
+        let camera = camera_opencv.convert_pixel_convention(PixelConvention::OpenCv, PixelConvention::Colmap);
+        Ok(Self { extractor, matcher, camera })
+    }
+
+    /// The camera in COLMAP's pixel convention.
+    pub fn camera(&self) -> &Camera {
+        &self.camera
+    }
+
+    /// Extractor name.
+    pub fn extractor_name(&self) -> &str {
+        self.extractor.name()
+    }
+
+    /// Extracts and undistorts the features of a frame.
+    pub fn process(&self, frame: &Frame) -> Result<FrameData, SlamError> {
+        let img = &frame.image;
+        if img.width() as u64 != self.camera.width || img.height() as u64 != self.camera.height {
+            return Err(SlamError::FrameSize {
+                name: frame.name.clone(),
+                width: img.width(),
+                height: img.height(),
+                cam_width: self.camera.width,
+                cam_height: self.camera.height,
+            });
+        }
+        let gray = img.to_gray();
+        let raw = self.extractor.extract(&gray)?;
+        let mut keep = Vec::with_capacity(raw.len());
+        let mut pixels = Vec::with_capacity(raw.len());
+        let mut normalized = Vec::with_capacity(raw.len());
+        let mut colors = Vec::with_capacity(raw.len());
+        for kp in &raw.keypoints {
+            let px = Vec2::new(f64::from(kp.x) + 0.5, f64::from(kp.y) + 0.5);
+            match self.camera.cam_from_img(&px) {
+                Some(n) if n.iter().all(|v| v.is_finite()) => {
+                    keep.push(true);
+                    pixels.push(px);
+                    normalized.push(n);
+                    colors.push(sample_color(img, kp.x, kp.y));
+                }
+                _ => keep.push(false),
+            }
+        }
+        let features = if keep.iter().all(|k| *k) {
+            raw
+        } else {
+            Features {
+                keypoints: raw.keypoints.iter().zip(&keep).filter(|(_, k)| **k).map(|(p, _)| *p).collect(),
+                descriptors: keep_rows(&raw.descriptors, &keep),
+            }
+        };
+        Ok(FrameData {
+            index: frame.index,
+            timestamp: frame.timestamp,
+            name: frame.name.clone(),
+            features,
+            pixels,
+            normalized,
+            colors,
+        })
+    }
+
+    /// Matches `query` against `train` (sorted by query index).
+    pub fn match_frames(&self, query: &FrameData, train: &FrameData) -> Result<Vec<Match>, SlamError> {
+        if query.is_empty() || train.is_empty() {
+            return Ok(Vec::new());
+        }
+        Ok(self.matcher.match_features(&query.features, &train.features)?)
+    }
+}
+
+/// Colour of the pixel nearest to an OpenCV-convention position.
+fn sample_color(img: &Image, x: f32, y: f32) -> [u8; 3] {
+    if img.is_empty() {
+        return [0; 3];
+    }
+    let xi = (x.round().max(0.0) as usize).min(img.width() - 1);
+    let yi = (y.round().max(0.0) as usize).min(img.height() - 1);
+    if img.channels() == 3 {
+        [img.get(xi, yi, 0), img.get(xi, yi, 1), img.get(xi, yi, 2)]
+    } else {
+        let v = img.get(xi, yi, 0);
+        [v, v, v]
+    }
+}

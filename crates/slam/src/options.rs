@@ -1,0 +1,168 @@
+//! Options of the pipeline, with the paper's defaults (section 4.2: flow
+//! threshold 0.05, 20 initialisation frames, 50 matches) and COLMAP's
+//! mapper defaults where the paper is silent.
+
+use crate::SlamError;
+use serde::Serialize;
+
+/// Options of [`crate::Slam`].
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct SlamOptions {
+    /// Feature extractor name ("orb"; learned ones when built in).
+    pub features: String,
+    /// Matcher name ("nn").
+    pub matcher: String,
+    /// Keypoints per frame. Default 2000.
+    pub num_features: usize,
+    /// Frames considered for map initialisation, `--init-frames` (paper 3.3).
+    /// Default 20.
+    pub init_frames: usize,
+    /// Flow score a frame must exceed to become a keyframe,
+    /// `--flow-threshold` (paper 3.2, 3.4). Default 0.05.
+    pub flow_threshold: f64,
+    /// Matches to the last keyframe a keyframe needs, `--min-matches`
+    /// (paper 3.4). Default 50.
+    pub min_matches: usize,
+    /// A registered keyframe keeping fewer 3D points than this is
+    /// deregistered (paper 3.5). Default 50.
+    pub min_keyframe_points: usize,
+    /// When a frame's matches to the last keyframe fall below this many, a
+    /// keyframe is forced so tracking is not lost (before the paper's
+    /// thresholds would allow one). Default 150.
+    pub force_keyframe_matches: usize,
+    /// Keyframe candidates whose two-view geometry with the last keyframe is
+    /// pure rotation (panoramic) are rejected, unless forced. Default true.
+    pub reject_pure_rotation: bool,
+    /// Previous keyframes a new keyframe is matched against (correspondence
+    /// graph edges). Default 5.
+    pub match_keyframes: usize,
+    /// Minimum median triangulation angle (degrees) of the initial pair.
+    /// COLMAP's 16 degrees suits photo collections; video needs less.
+    /// Default 2.
+    pub init_min_tri_angle_deg: f64,
+    /// Minimum inlier matches of the initial pair. Default 100.
+    pub init_min_inliers: usize,
+    /// Minimum 3D points after initialisation. Default 100.
+    pub init_min_points: usize,
+    /// Images in local bundle adjustment: the new keyframe and its most
+    /// connected keyframes (paper 3.6: up to six). Default 7.
+    pub local_ba_images: usize,
+    /// Global bundle adjustment runs when registered keyframes or points grew
+    /// by this ratio since the last one (COLMAP: 1.1). Default 1.1.
+    pub global_ba_growth: f64,
+    /// Refine focal length and distortion in bundle adjustment (for unknown
+    /// cameras). Default false.
+    pub refine_intrinsics: bool,
+    /// Maximum reprojection error (px) for observations (COLMAP: 4). Default 4.
+    pub max_reproj_error_px: f64,
+    /// Minimum triangulation angle (degrees) of a point (COLMAP: 1.5). Default 1.5.
+    pub min_tri_angle_deg: f64,
+    /// RANSAC threshold (px) of absolute pose estimation. Default 6.
+    pub abs_pose_max_error_px: f64,
+    /// Minimum PnP inliers to register a frame (COLMAP: 30). Default 30.
+    pub abs_pose_min_inliers: usize,
+    /// Consecutive frames that cannot be tracked before the map is given up
+    /// and a new one started. Default 15.
+    pub max_lost_frames: usize,
+    /// Localise every non-keyframe against the final map. Default true.
+    pub localize_all_frames: bool,
+    /// Seed of every random choice (RANSAC). Default 0.
+    pub seed: u64,
+}
+
+impl Default for SlamOptions {
+    fn default() -> Self {
+        Self {
+            features: "orb".into(),
+            matcher: "nn".into(),
+            num_features: 2000,
+            init_frames: 20,
+            flow_threshold: 0.05,
+            min_matches: 50,
+            min_keyframe_points: 50,
+            force_keyframe_matches: 150,
+            reject_pure_rotation: true,
+            match_keyframes: 5,
+            init_min_tri_angle_deg: 2.0,
+            init_min_inliers: 100,
+            init_min_points: 100,
+            local_ba_images: 7,
+            global_ba_growth: 1.1,
+            refine_intrinsics: false,
+            max_reproj_error_px: 4.0,
+            min_tri_angle_deg: 1.5,
+            abs_pose_max_error_px: 6.0,
+            abs_pose_min_inliers: 30,
+            max_lost_frames: 15,
+            localize_all_frames: true,
+            seed: 0,
+        }
+    }
+}
+
+fn invalid(name: &'static str, value: impl ToString, reason: &str) -> SlamError {
+    SlamError::InvalidOption { name, value: value.to_string(), reason: reason.to_string() }
+}
+
+impl SlamOptions {
+    /// Checks every option.
+    pub fn validate(&self) -> Result<(), SlamError> {
+        if self.num_features < 8 {
+            return Err(invalid("num-features", self.num_features, "must be at least 8"));
+        }
+        if self.init_frames < 2 {
+            return Err(invalid("init-frames", self.init_frames, "must be at least 2"));
+        }
+        if !(self.flow_threshold.is_finite() && (0.0..10.0).contains(&self.flow_threshold)) {
+            return Err(invalid("flow-threshold", self.flow_threshold, "must lie in [0, 10)"));
+        }
+        if self.min_matches < 8 {
+            return Err(invalid("min-matches", self.min_matches, "must be at least 8"));
+        }
+        if self.match_keyframes == 0 {
+            return Err(invalid("match-keyframes", self.match_keyframes, "must be at least 1"));
+        }
+        if !(self.init_min_tri_angle_deg >= 0.0 && self.init_min_tri_angle_deg < 90.0) {
+            return Err(invalid("init-min-tri-angle", self.init_min_tri_angle_deg, "must lie in [0, 90)"));
+        }
+        if self.local_ba_images < 2 {
+            return Err(invalid("local-ba-images", self.local_ba_images, "must be at least 2"));
+        }
+        if !(self.global_ba_growth > 1.0 && self.global_ba_growth.is_finite()) {
+            return Err(invalid("global-ba-growth", self.global_ba_growth, "must be greater than 1"));
+        }
+        for (name, v) in [
+            ("max-reproj-error", self.max_reproj_error_px),
+            ("abs-pose-max-error", self.abs_pose_max_error_px),
+        ] {
+            if !(v > 0.0 && v.is_finite()) {
+                return Err(invalid(name, v, "must be positive"));
+            }
+        }
+        if !(self.min_tri_angle_deg >= 0.0 && self.min_tri_angle_deg < 90.0) {
+            return Err(invalid("min-tri-angle", self.min_tri_angle_deg, "must lie in [0, 90)"));
+        }
+        if self.abs_pose_min_inliers < 6 {
+            return Err(invalid("abs-pose-min-inliers", self.abs_pose_min_inliers, "must be at least 6"));
+        }
+        if self.max_lost_frames == 0 {
+            return Err(invalid("max-lost-frames", self.max_lost_frames, "must be at least 1"));
+        }
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn defaults_validate_and_bad_values_are_named() {
+        SlamOptions::default().validate().unwrap();
+        let bad = SlamOptions { flow_threshold: -0.1, ..SlamOptions::default() };
+        let e = bad.validate().unwrap_err().to_string();
+        assert!(e.contains("flow-threshold"), "{e}");
+        let bad = SlamOptions { init_frames: 1, ..SlamOptions::default() };
+        assert!(bad.validate().unwrap_err().to_string().contains("init-frames"));
+    }
+}

@@ -1,0 +1,207 @@
+//! Writing a run's outputs (all atomically): the COLMAP model of the largest
+//! map (binary or text), the other maps under `maps/<k>/`, `trajectory.tum`
+//! (every localised frame), `keyframes.tum`, `points.ply` and `report.json`.
+
+use crate::pipeline::{FrameInfo, SlamResult};
+use crate::timing::StageTimings;
+use crate::{SlamError, SlamOptions};
+use colslam_eval::trajectory::Trajectory;
+use colslam_scene::{write_model, write_ply, ModelFormat};
+use serde::Serialize;
+use std::path::Path;
+
+/// Summary of one map.
+#[derive(Debug, Clone, Serialize)]
+pub struct MapSummary {
+    /// Map index (order of creation).
+    pub index: usize,
+    /// Registered keyframes.
+    pub keyframes: usize,
+    /// Frames with a pose (keyframes included).
+    pub localized_frames: usize,
+    /// 3D points.
+    pub points: usize,
+    /// Observations.
+    pub observations: usize,
+    /// Mean track length.
+    pub mean_track_length: f64,
+    /// Mean reprojection error, px.
+    pub mean_reprojection_error: f64,
+    /// Mean 3D points observed per keyframe (the paper's "3D points per image").
+    pub points_per_image: f64,
+    /// First and last frame index with a pose.
+    pub frame_range: Option<(usize, usize)>,
+}
+
+/// The contents of `report.json`.
+#[derive(Debug, Clone, Serialize)]
+pub struct RunReport {
+    /// Input path.
+    pub input: String,
+    /// Frames read.
+    pub frames: usize,
+    /// Keyframes of the largest map.
+    pub keyframes: usize,
+    /// Frames localised in the largest map.
+    pub localized: usize,
+    /// `localized / frames`.
+    pub localized_ratio: f64,
+    /// 3D points of the largest map.
+    pub points: usize,
+    /// Observations of the largest map.
+    pub observations: usize,
+    /// Mean track length of the largest map.
+    pub mean_track_length: f64,
+    /// Mean reprojection error (px) of the largest map.
+    pub mean_reprojection_error: f64,
+    /// Mean 3D points per keyframe of the largest map.
+    pub points_per_image: f64,
+    /// Every map, largest first.
+    pub maps: Vec<MapSummary>,
+    /// Frames localised in no map.
+    pub not_localized: Vec<FrameInfo>,
+    /// Keyframe candidates rejected as pure rotation.
+    pub rejected_rotation: usize,
+    /// Keyframes forced to keep tracking.
+    pub forced_keyframes: usize,
+    /// Keyframes deregistered by the point-count check.
+    pub deregistered: usize,
+    /// Notable events.
+    pub notes: Vec<String>,
+    /// Per-stage wall times, seconds.
+    pub timings_s: StageTimings,
+    /// Wall time of the whole run, seconds (decode to outputs on disk).
+    pub wall_time_s: f64,
+    /// Wall time per frame, milliseconds.
+    pub ms_per_frame: f64,
+    /// Camera used (COLMAP model name and parameters, COLMAP pixel convention).
+    pub camera: CameraSummary,
+    /// Options of the run.
+    pub options: SlamOptions,
+}
+
+/// A camera in the report.
+#[derive(Debug, Clone, Serialize)]
+pub struct CameraSummary {
+    /// COLMAP model name.
+    pub model: String,
+    /// Width.
+    pub width: u64,
+    /// Height.
+    pub height: u64,
+    /// Parameters (after refinement, if enabled).
+    pub params: Vec<f64>,
+}
+
+/// Output format of the model.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum OutputFormat {
+    /// COLMAP binary (default).
+    #[default]
+    Binary,
+    /// COLMAP text.
+    Text,
+}
+
+fn summarize(m: &crate::pipeline::MapResult) -> MapSummary {
+    let rec = &m.map.rec;
+    MapSummary {
+        index: m.map.index,
+        keyframes: rec.num_registered_images(),
+        localized_frames: m.poses.len(),
+        points: rec.num_points3d(),
+        observations: rec.num_observations(),
+        mean_track_length: rec.mean_track_length(),
+        mean_reprojection_error: rec.mean_reprojection_error(),
+        points_per_image: rec.mean_observations_per_registered_image(),
+        frame_range: m.poses.first().zip(m.poses.last()).map(|(a, b)| (a.index, b.index)),
+    }
+}
+
+fn trajectory(poses: &[crate::map::FramePose], keyframes_only: bool) -> Trajectory {
+    let sel: Vec<&crate::map::FramePose> = poses.iter().filter(|p| !keyframes_only || p.keyframe).collect();
+    Trajectory::from_cam_from_world(
+        sel.iter().map(|p| p.timestamp).collect(),
+        &sel.iter().map(|p| p.cam_from_world).collect::<Vec<_>>(),
+    )
+}
+
+fn create_dir(dir: &Path) -> Result<(), SlamError> {
+    std::fs::create_dir_all(dir).map_err(|source| SlamError::Io { path: dir.to_path_buf(), source })
+}
+
+/// Writes every output of `result` into `out` and returns the report
+/// (without wall time, which the caller fills in and writes with
+/// [`write_report`]).
+pub fn write_outputs(
+    result: &SlamResult,
+    out: &Path,
+    input: &str,
+    opts: &SlamOptions,
+    format: OutputFormat,
+) -> Result<RunReport, SlamError> {
+    create_dir(out)?;
+    let fmt = match format {
+        OutputFormat::Binary => ModelFormat::Binary,
+        OutputFormat::Text => ModelFormat::Text,
+    };
+    for (k, m) in result.maps.iter().enumerate() {
+        let dir = if k == 0 { out.to_path_buf() } else { out.join("maps").join(k.to_string()) };
+        create_dir(&dir)?;
+        write_model(&m.map.rec, &dir, fmt)?;
+        write_ply(&m.map.rec, &dir.join("points.ply"))?;
+        trajectory(&m.poses, false).write_tum(&dir.join("trajectory.tum"))?;
+        trajectory(&m.poses, true).write_tum(&dir.join("keyframes.tum"))?;
+    }
+    if result.maps.is_empty() {
+        // Still write empty trajectories so consumers find the files.
+        Trajectory::default().write_tum(&out.join("trajectory.tum"))?;
+        Trajectory::default().write_tum(&out.join("keyframes.tum"))?;
+    }
+    let maps: Vec<MapSummary> = result.maps.iter().map(summarize).collect();
+    let first = maps.first();
+    let camera = result
+        .maps
+        .first()
+        .and_then(|m| m.map.rec.camera(m.map.camera_id))
+        .map(|c| CameraSummary {
+            model: c.camera.model.name().to_string(),
+            width: c.camera.width,
+            height: c.camera.height,
+            params: c.camera.params.clone(),
+        })
+        .unwrap_or(CameraSummary { model: String::new(), width: 0, height: 0, params: Vec::new() });
+    let frames = result.frames.len();
+    let localized = first.map_or(0, |m| m.localized_frames);
+    Ok(RunReport {
+        input: input.to_string(),
+        frames,
+        keyframes: first.map_or(0, |m| m.keyframes),
+        localized,
+        localized_ratio: if frames == 0 { 0.0 } else { localized as f64 / frames as f64 },
+        points: first.map_or(0, |m| m.points),
+        observations: first.map_or(0, |m| m.observations),
+        mean_track_length: first.map_or(0.0, |m| m.mean_track_length),
+        mean_reprojection_error: first.map_or(0.0, |m| m.mean_reprojection_error),
+        points_per_image: first.map_or(0.0, |m| m.points_per_image),
+        maps,
+        not_localized: result.not_localized.clone(),
+        rejected_rotation: result.rejected_rotation,
+        forced_keyframes: result.forced_keyframes,
+        deregistered: result.deregistered,
+        notes: result.notes.clone(),
+        timings_s: result.timings.clone(),
+        wall_time_s: 0.0,
+        ms_per_frame: 0.0,
+        camera,
+        options: opts.clone(),
+    })
+}
+
+/// Writes `report.json` atomically.
+pub fn write_report(report: &RunReport, out: &Path) -> Result<(), SlamError> {
+    let path = out.join("report.json");
+    let mut text = serde_json::to_string_pretty(report)?;
+    text.push('\n');
+    colslam_image::write_atomic(&path, text.as_bytes()).map_err(|source| SlamError::Io { path, source })
+}

@@ -1,0 +1,527 @@
+//! The sequential keyframe pipeline (paper figure 1): initialise from the
+//! first frames, then for every frame match to the last keyframe, compute
+//! the flow score, decide on a keyframe, register and triangulate it, bundle
+//! adjust; localise every other frame against the map at the end.
+
+use crate::events::{EventPoint, EventSink, SlamEvent};
+use crate::frontend::{FrameData, Frontend};
+use crate::map::{two_view, FramePose, FrameRecord, MapState, RegisterFailure};
+use crate::timing::{Stage, StageTimings};
+use crate::{SlamError, SlamOptions};
+use colslam_estimators::TwoViewConfig;
+use colslam_features::{flow_score, Match};
+use colslam_io::Frame;
+use rayon::prelude::*;
+use std::collections::HashMap;
+
+/// Non-keyframes kept in memory until the next keyframe (they are matched
+/// to it as well, then dropped). Bounds memory on long static stretches.
+const MAX_PENDING_FRAMES: usize = 60;
+
+/// Flow lines sent per frame event (a subsample of the matches).
+const MAX_FLOW_LINES: usize = 300;
+
+/// A frame seen by the pipeline.
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct FrameInfo {
+    /// Frame index (after skip).
+    pub index: usize,
+    /// Timestamp, seconds.
+    pub timestamp: f64,
+    /// Name.
+    pub name: String,
+}
+
+/// A map of the finished run.
+#[derive(Debug, Clone)]
+pub struct MapResult {
+    /// The map (reconstruction, graph, keyframes).
+    pub map: MapState,
+    /// Poses of keyframes and localised frames, in frame order.
+    pub poses: Vec<FramePose>,
+}
+
+/// Everything a run produced.
+#[derive(Debug, Clone)]
+pub struct SlamResult {
+    /// Maps, largest (most localised frames) first.
+    pub maps: Vec<MapResult>,
+    /// Every frame the pipeline saw.
+    pub frames: Vec<FrameInfo>,
+    /// Frames localised in no map.
+    pub not_localized: Vec<FrameInfo>,
+    /// Per-stage wall times.
+    pub timings: StageTimings,
+    /// Notable events (map resets, failed initialisation, ...).
+    pub notes: Vec<String>,
+    /// Keyframe candidates rejected as pure rotation.
+    pub rejected_rotation: usize,
+    /// Keyframes forced to keep tracking.
+    pub forced_keyframes: usize,
+    /// Keyframes deregistered by the point-count check.
+    pub deregistered: usize,
+}
+
+enum State {
+    /// Collecting the initialisation window.
+    Initializing { window: Vec<FrameData> },
+    /// Tracking against the current map.
+    Tracking,
+}
+
+/// The pipeline. Feed frames in order with [`Slam::process`], then call
+/// [`Slam::finish`].
+pub struct Slam {
+    opts: SlamOptions,
+    frontend: Frontend,
+    events: EventSink,
+    state: State,
+    map: Option<MapState>,
+    finished: Vec<MapState>,
+    /// The last non-keyframe, its matches to the last keyframe and its record
+    /// index: promoted to keyframe when tracking is about to be lost.
+    prev: Option<(FrameData, Vec<Match>, usize)>,
+    /// Non-keyframes since the last keyframe, with their record indices.
+    pending: Vec<(FrameData, usize)>,
+    lost: usize,
+    frames: Vec<FrameInfo>,
+    timings: StageTimings,
+    notes: Vec<String>,
+    rejected_rotation: usize,
+    forced_keyframes: usize,
+    deregistered: usize,
+}
+
+impl std::fmt::Debug for Slam {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "Slam({:?}, {} frames)", self.frontend, self.frames.len())
+    }
+}
+
+impl Slam {
+    /// A pipeline for a camera calibrated in OpenCV's pixel convention (as
+    /// camera files give it), sending events to `events`.
+    pub fn new(opts: SlamOptions, camera_opencv: &colslam_camera::Camera, events: EventSink) -> Result<Self, SlamError> {
+        opts.validate()?;
+        let frontend = Frontend::new(&opts, camera_opencv)?;
+        Ok(Self {
+            opts,
+            frontend,
+            events,
+            state: State::Initializing { window: Vec::new() },
+            map: None,
+            finished: Vec::new(),
+            prev: None,
+            pending: Vec::new(),
+            lost: 0,
+            frames: Vec::new(),
+            timings: StageTimings::default(),
+            notes: Vec::new(),
+            rejected_rotation: 0,
+            forced_keyframes: 0,
+            deregistered: 0,
+        })
+    }
+
+    /// Time spent so far per stage (the caller may add decoding time).
+    pub fn timings_mut(&mut self) -> &mut StageTimings {
+        &mut self.timings
+    }
+
+    /// Registered keyframes in the current map.
+    pub fn num_keyframes(&self) -> usize {
+        self.map.as_ref().map_or(0, |m| m.rec.num_registered_images())
+    }
+
+    /// 3D points in the current map.
+    pub fn num_points(&self) -> usize {
+        self.map.as_ref().map_or(0, |m| m.rec.num_points3d())
+    }
+
+    /// The current map's reconstruction, if one exists.
+    pub fn current_reconstruction(&self) -> Option<&colslam_scene::Reconstruction> {
+        self.map.as_ref().map(|m| &m.rec)
+    }
+
+    fn focal(&self) -> f64 {
+        let c = self.frontend.camera();
+        0.5 * (c.focal_x() + c.focal_y())
+    }
+
+    /// Processes the next frame.
+    pub fn process(&mut self, frame: &Frame) -> Result<(), SlamError> {
+        let data = {
+            let frontend = &self.frontend;
+            self.timings.time(Stage::Features, || frontend.process(frame))?
+        };
+        self.frames.push(FrameInfo { index: data.index, timestamp: data.timestamp, name: data.name.clone() });
+        self.step(data)
+    }
+
+    fn step(&mut self, data: FrameData) -> Result<(), SlamError> {
+        match &mut self.state {
+            State::Initializing { window } => {
+                window.push(data);
+                if window.len() >= self.opts.init_frames {
+                    self.try_initialize(false)?;
+                }
+                Ok(())
+            }
+            State::Tracking => self.track(data),
+        }
+    }
+
+    /// Exhaustive matching in the window and the initial pair search; on
+    /// failure the window slides forward by half (paper 3.3: "try another
+    /// pair"; we also move on rather than fail).
+    fn try_initialize(&mut self, at_end: bool) -> Result<(), SlamError> {
+        let State::Initializing { window } = &mut self.state else { return Ok(()) };
+        let window = std::mem::take(window);
+        if window.len() < 2 {
+            self.state = State::Initializing { window };
+            return Ok(());
+        }
+        let n = window.len();
+        let pairs: Vec<(usize, usize)> = (0..n).flat_map(|i| (i + 1..n).map(move |j| (i, j))).collect();
+        let frontend = &self.frontend;
+        let matched: Result<Vec<((usize, usize), Vec<Match>)>, SlamError> = self.timings.time(Stage::Matching, || {
+            pairs.par_iter().map(|&(i, j)| Ok(((i, j), frontend.match_frames(&window[i], &window[j])?))).collect()
+        });
+        let pair_matches: HashMap<(usize, usize), Vec<Match>> = matched?.into_iter().collect();
+        let map_index = self.finished.len() + usize::from(self.map.is_some());
+        let started = std::time::Instant::now();
+        let camera = self.frontend.camera().clone();
+        let init = MapState::initialize(map_index, &window, &pair_matches, &camera, &self.opts, &mut self.timings)?;
+        self.timings.add(Stage::Initialization, started.elapsed());
+        let Some((mut map, i, j)) = init else {
+            let note = format!(
+                "initialisation failed on frames {}..={}{}",
+                window[0].index,
+                window[n - 1].index,
+                if at_end { " (end of input)" } else { "; sliding the window" }
+            );
+            tracing::warn!("{note}");
+            self.notes.push(note);
+            let keep = window.len() / 2;
+            let rest = window.into_iter().skip(n - keep).collect();
+            self.state = State::Initializing { window: rest };
+            return Ok(());
+        };
+        // Frames of the window other than the pair: earlier ones are only
+        // localised (their matches to the pair are recorded); later ones go
+        // through tracking as usual.
+        let (ida, idb) = (map.keyframes[0].image_id, map.keyframes[1].image_id);
+        let mut later = Vec::new();
+        for (k, data) in window.into_iter().enumerate() {
+            if k == i || k == j {
+                continue;
+            }
+            if k > j {
+                later.push(data);
+                continue;
+            }
+            let mut rec = FrameRecord::new(&data);
+            for (kf, other) in [(ida, i), (idb, j)] {
+                let key = if k < other { (k, other) } else { (other, k) };
+                if let Some(ms) = pair_matches.get(&key) {
+                    // Orient the matches with this frame as the query.
+                    let oriented: Vec<Match> = if k < other {
+                        ms.clone()
+                    } else {
+                        ms.iter().map(|m| Match { query: m.train, train: m.query, distance: m.distance }).collect()
+                    };
+                    rec.add_matches(&data, kf, &oriented);
+                }
+            }
+            map.records.push(rec);
+        }
+        if let Some(old) = self.map.take() {
+            self.finished.push(old);
+        }
+        self.map = Some(map);
+        self.state = State::Tracking;
+        self.prev = None;
+        self.pending.clear();
+        self.lost = 0;
+        for id in [ida, idb] {
+            self.emit_keyframe(id);
+        }
+        self.emit_map(true);
+        for data in later {
+            self.track(data)?;
+        }
+        Ok(())
+    }
+
+    fn track(&mut self, data: FrameData) -> Result<(), SlamError> {
+        let Some(map) = self.map.as_ref() else {
+            self.state = State::Initializing { window: vec![data] };
+            return Ok(());
+        };
+        let Some(kf) = map.last_keyframe() else { return Ok(()) };
+        let kf_id = kf.image_id;
+        let matches = {
+            let frontend = &self.frontend;
+            self.timings.time(Stage::Matching, || frontend.match_frames(&data, &kf.data))?
+        };
+        let (fx, fy) = (self.frontend.camera().focal_x(), self.frontend.camera().focal_y());
+        let t0 = std::time::Instant::now();
+        let flow = flow_score(&data.features.keypoints, &kf.data.features.keypoints, &matches, fx, fy)?;
+        let n = matches.len();
+        let mut became = false;
+        // A keyframe registration that failed: the map could not explain
+        // this frame (wrong matches, a cut, a collapsed map).
+        let mut failed_attempt = false;
+        if n >= self.opts.min_matches && flow.score > self.opts.flow_threshold {
+            let rotation = self.opts.reject_pure_rotation
+                && two_view(&data, &kf.data, &matches, 0.5 * (fx + fy), self.opts.seed)
+                    .is_some_and(|g| g.config == TwoViewConfig::Panoramic);
+            self.timings.add(Stage::KeyframeTest, t0.elapsed());
+            if rotation {
+                self.rejected_rotation += 1;
+                tracing::debug!("frame {}: keyframe candidate rejected (pure rotation)", data.index);
+            } else {
+                became = self.try_keyframe(&data, &matches)?;
+                failed_attempt = !became;
+            }
+        } else {
+            self.timings.add(Stage::KeyframeTest, t0.elapsed());
+        }
+        if !became && !failed_attempt && n < self.opts.force_keyframe_matches {
+            // Tracking is about to be lost: force a keyframe, this frame if
+            // it still matches well enough, else the previous frame.
+            if n >= self.opts.min_matches {
+                became = self.try_keyframe(&data, &matches)?;
+                failed_attempt = !became;
+                if became {
+                    self.forced_keyframes += 1;
+                }
+            } else if let Some((prev, prev_matches, rec_idx)) = self.prev.take() {
+                if self.try_keyframe(&prev, &prev_matches)? {
+                    self.forced_keyframes += 1;
+                    if let Some(r) = self.map.as_mut().and_then(|m| m.records.get_mut(rec_idx)) {
+                        r.promoted = true;
+                    }
+                    // Track this frame against the new keyframe instead.
+                    return self.track(data);
+                }
+            }
+        }
+        self.send_frame_event(&data, &matches, flow.score, became);
+        if became {
+            self.lost = 0;
+            return Ok(());
+        }
+        // A non-keyframe: record it for localisation.
+        let Some(map) = self.map.as_mut() else { return Ok(()) };
+        let mut rec = FrameRecord::new(&data);
+        rec.add_matches(&data, kf_id, &matches);
+        map.records.push(rec);
+        let rec_idx = map.records.len() - 1;
+        if n < self.opts.min_matches || failed_attempt {
+            self.lost += 1;
+        } else {
+            self.lost = 0;
+        }
+        if self.pending.len() < MAX_PENDING_FRAMES {
+            self.pending.push((data.clone(), rec_idx));
+        }
+        self.prev = Some((data, matches, rec_idx));
+        if self.lost > self.opts.max_lost_frames {
+            self.reset_map()?;
+        }
+        Ok(())
+    }
+
+    /// Registers a keyframe candidate; on success, matches the pending
+    /// non-keyframes to it and emits events.
+    fn try_keyframe(&mut self, data: &FrameData, matches: &[Match]) -> Result<bool, SlamError> {
+        let Some(map) = self.map.as_mut() else { return Ok(false) };
+        let result = map.register_keyframe(data, matches, &self.frontend, &self.opts, &mut self.timings)?;
+        let image_id = match result {
+            Ok(id) => id,
+            Err(failure) => {
+                if matches!(failure, RegisterFailure::TooFewPoints(_)) {
+                    self.deregistered += 1;
+                }
+                tracing::debug!("frame {}: keyframe not registered: {failure}", data.index);
+                return Ok(false);
+            }
+        };
+        // Pending frames see the new keyframe too.
+        let pending = std::mem::take(&mut self.pending);
+        let frontend = &self.frontend;
+        let extra: Result<Vec<(usize, Vec<Match>)>, SlamError> = self.timings.time(Stage::Matching, || {
+            pending.par_iter().map(|(f, idx)| Ok((*idx, frontend.match_frames(f, data)?))).collect()
+        });
+        for ((f, _), (idx, ms)) in pending.iter().zip(extra?) {
+            if let Some(r) = map.records.get_mut(idx) {
+                r.add_matches(f, image_id, &ms);
+            }
+        }
+        self.prev = None;
+        let mut global = None;
+        if map.needs_global_ba(&self.opts) {
+            global = Some(map.global_ba(&self.opts, &mut self.timings)?);
+        }
+        self.emit_keyframe(image_id);
+        if let Some(r) = &global {
+            let m = self.map.as_ref().map_or(0, |m| m.index);
+            self.events.send(SlamEvent::BundleAdjusted {
+                map: m,
+                global: true,
+                final_cost: r.final_cost,
+                iterations: r.iterations,
+            });
+        }
+        self.emit_map(global.is_some());
+        Ok(true)
+    }
+
+    fn reset_map(&mut self) -> Result<(), SlamError> {
+        let Some(map) = self.map.take() else { return Ok(()) };
+        let frame = self.frames.last().map_or(0, |f| f.index);
+        let reason = format!("tracking lost for {} frames", self.lost);
+        let note = format!("map {} ended at frame {frame}: {reason}; starting a new map", map.index);
+        tracing::warn!("{note}");
+        self.notes.push(note);
+        let new_map = map.index + 1;
+        self.finished.push(map);
+        self.events.send(SlamEvent::MapReset { new_map, frame_index: frame, reason });
+        // The last frames start the next initialisation window.
+        let window: Vec<FrameData> = self.prev.take().map(|(d, _, _)| d).into_iter().collect();
+        self.pending.clear();
+        self.lost = 0;
+        self.state = State::Initializing { window };
+        Ok(())
+    }
+
+    fn send_frame_event(&mut self, data: &FrameData, matches: &[Match], flow: f64, is_keyframe: bool) {
+        if !self.events.is_active() {
+            return;
+        }
+        let kf = self.map.as_ref().and_then(|m| {
+            // The keyframe the frame was matched to is the last one, or the
+            // one before when this frame itself just became a keyframe.
+            let k = m.keyframes.len().checked_sub(if is_keyframe { 2 } else { 1 })?;
+            m.keyframes.get(k)
+        });
+        let step = (matches.len() / MAX_FLOW_LINES).max(1);
+        let flow_lines = kf
+            .map(|kf| {
+                matches
+                    .iter()
+                    .step_by(step)
+                    .filter_map(|m| {
+                        let a = data.features.keypoints.get(m.query as usize)?;
+                        let b = kf.data.features.keypoints.get(m.train as usize)?;
+                        Some([a.x, a.y, b.x, b.y])
+                    })
+                    .collect()
+            })
+            .unwrap_or_default();
+        self.events.send(SlamEvent::FrameProcessed {
+            index: data.index,
+            timestamp: data.timestamp,
+            flow_score: flow,
+            num_matches: matches.len(),
+            flow_lines,
+            is_keyframe,
+        });
+    }
+
+    fn emit_keyframe(&mut self, image_id: colslam_scene::ImageId) {
+        if !self.events.is_active() {
+            return;
+        }
+        let Some(map) = self.map.as_ref() else { return };
+        let Some(img) = map.rec.image(image_id) else { return };
+        let frame_index = map.keyframes.iter().find(|k| k.image_id == image_id).map_or(0, |k| k.data.index);
+        self.events.send(SlamEvent::KeyframeAdded {
+            map: map.index,
+            image_id: image_id.0,
+            frame_index,
+            cam_from_world: img.cam_from_world,
+            num_points: img.num_points3d(),
+        });
+    }
+
+    /// Sends the map's changes since the last update (or everything).
+    fn emit_map(&mut self, full: bool) {
+        if !self.events.is_active() {
+            return;
+        }
+        let Some(map) = self.map.as_mut() else { return };
+        let current: std::collections::HashSet<colslam_scene::Point3DId> = map.rec.point3d_ids().into_iter().collect();
+        let removed: Vec<u64> = if full {
+            Vec::new()
+        } else {
+            map.sent_points.difference(&current).map(|p| p.0).collect()
+        };
+        // Points of the newest keyframes moved in local BA; new points are
+        // those not sent yet.
+        let recent: std::collections::HashSet<colslam_scene::ImageId> =
+            map.keyframes.iter().rev().take(self.opts.local_ba_images).map(|k| k.image_id).collect();
+        let points: Vec<EventPoint> = map
+            .rec
+            .points3d()
+            .filter(|(id, p)| {
+                full || !map.sent_points.contains(id) || p.track.iter().any(|e| recent.contains(&e.image_id))
+            })
+            .map(|(id, p)| EventPoint { id: id.0, xyz: p.xyz, color: p.color })
+            .collect();
+        map.sent_points = current;
+        let poses = map
+            .keyframes
+            .iter()
+            .filter(|k| full || recent.contains(&k.image_id))
+            .filter_map(|k| map.rec.image(k.image_id).map(|img| (k.image_id.0, k.data.index, img.cam_from_world)))
+            .collect();
+        let event = SlamEvent::MapUpdated {
+            map: map.index,
+            full,
+            points,
+            removed_points: removed,
+            poses,
+            keyframes: map.rec.num_registered_images(),
+            num_points: map.rec.num_points3d(),
+            observations: map.rec.num_observations(),
+            mean_reproj_error: map.rec.mean_reprojection_error(),
+        };
+        self.events.send(event);
+    }
+
+    /// Ends the run: a last initialisation attempt if none succeeded, final
+    /// global BA of every map, localisation of every frame.
+    pub fn finish(mut self) -> Result<SlamResult, SlamError> {
+        if matches!(self.state, State::Initializing { .. }) {
+            self.try_initialize(true)?;
+        }
+        if let Some(map) = self.map.take() {
+            self.finished.push(map);
+        }
+        let focal = self.focal();
+        let mut maps = Vec::new();
+        for mut map in std::mem::take(&mut self.finished) {
+            map.finalize(&self.opts, &mut self.timings)?;
+            let (poses, _failed) = map.localize_all(focal, &self.opts, &mut self.timings);
+            maps.push(MapResult { map, poses });
+        }
+        // Largest first; ties by earlier map.
+        maps.sort_by(|a, b| b.poses.len().cmp(&a.poses.len()).then(a.map.index.cmp(&b.map.index)));
+        let localized: std::collections::HashSet<usize> =
+            maps.iter().flat_map(|m| m.poses.iter().map(|p| p.index)).collect();
+        let not_localized = self.frames.iter().filter(|f| !localized.contains(&f.index)).cloned().collect();
+        self.events.send(SlamEvent::Finished);
+        Ok(SlamResult {
+            maps,
+            frames: self.frames,
+            not_localized,
+            timings: self.timings,
+            notes: self.notes,
+            rejected_rotation: self.rejected_rotation,
+            forced_keyframes: self.forced_keyframes,
+            deregistered: self.deregistered,
+        })
+    }
+}

@@ -1,0 +1,151 @@
+//! End-to-end tests of the pipeline on synthetic sequences with exact ground
+//! truth, and on degenerate inputs (they must finish with a report, never
+//! panic).
+
+use colslam_eval::trajectory::Trajectory;
+use colslam_eval::{evaluate, EvalOptions};
+use colslam_image::Image;
+use colslam_io::Frame;
+use colslam_slam::{EventSink, Slam, SlamEvent, SlamOptions, SlamResult};
+use colslam_synth::{SynthOptions, SyntheticSequence};
+
+fn small_synth(frames: usize, seed: u64) -> SynthOptions {
+    SynthOptions { frames, width: 320, height: 240, focal: 262.5, seed, ..SynthOptions::default() }
+}
+
+fn frames_of(seq: &SyntheticSequence, n: usize, fps: f64) -> Vec<Frame> {
+    (0..n)
+        .map(|i| Frame {
+            index: i,
+            source_index: i,
+            timestamp: i as f64 / fps,
+            name: format!("{i:06}.png"),
+            image: seq.render(i).expect("render"),
+        })
+        .collect()
+}
+
+fn run(frames: &[Frame], camera: &colslam_camera::Camera, opts: SlamOptions, events: EventSink) -> SlamResult {
+    let mut slam = Slam::new(opts, camera, events).expect("options");
+    for f in frames {
+        slam.process(f).expect("process");
+    }
+    slam.finish().expect("finish")
+}
+
+fn gt_trajectory(seq: &SyntheticSequence, n: usize, fps: f64) -> Trajectory {
+    let poses: Vec<_> = (0..n).map(|i| seq.cam_from_world(i).expect("pose")).collect();
+    Trajectory::from_cam_from_world((0..n).map(|i| i as f64 / fps).collect(), &poses)
+}
+
+fn est_trajectory(r: &SlamResult) -> Trajectory {
+    let m = &r.maps[0];
+    Trajectory::from_cam_from_world(
+        m.poses.iter().map(|p| p.timestamp).collect(),
+        &m.poses.iter().map(|p| p.cam_from_world).collect::<Vec<_>>(),
+    )
+}
+
+#[test]
+fn synthetic_sequence_is_fully_localised_and_accurate() {
+    // The default camera and scene, fewer frames.
+    let opts = SynthOptions { frames: 100, ..SynthOptions::default() };
+    let seq = SyntheticSequence::new(&opts).expect("sequence");
+    let frames = frames_of(&seq, opts.frames, opts.fps);
+    let (events, rx) = EventSink::channel();
+    let r = run(&frames, seq.camera(), SlamOptions::default(), events);
+    assert_eq!(r.maps.len(), 1, "notes: {:?}", r.notes);
+    assert!(r.not_localized.is_empty(), "not localised: {:?}", r.not_localized);
+    assert_eq!(r.maps[0].poses.len(), opts.frames);
+    let ate = evaluate(&gt_trajectory(&seq, opts.frames, opts.fps), &est_trajectory(&r), &EvalOptions::default())
+        .expect("evaluate");
+    let size = seq.scene().room().size();
+    let diagonal = (size[0].powi(2) + size[1].powi(2) + size[2].powi(2)).sqrt();
+    assert!(ate.ate_rmse < 5e-4 * diagonal, "ATE {} m vs scene diagonal {} m", ate.ate_rmse, diagonal);
+    // Events arrived, keyframes among them, and the run finished.
+    let events: Vec<SlamEvent> = rx.try_iter().collect();
+    let keyframes = events.iter().filter(|e| matches!(e, SlamEvent::KeyframeAdded { .. })).count();
+    assert!(keyframes >= 3, "{keyframes} keyframe events");
+    assert!(events.iter().any(|e| matches!(e, SlamEvent::MapUpdated { .. })));
+    assert!(matches!(events.last(), Some(SlamEvent::Finished)));
+    let rec = &r.maps[0].map.rec;
+    rec.check_consistency().expect("consistent model");
+    assert!(rec.mean_reprojection_error() < 1.0, "{}", rec.mean_reprojection_error());
+}
+
+#[test]
+fn same_seed_gives_identical_models() {
+    let opts = small_synth(40, 2);
+    let seq = SyntheticSequence::new(&opts).expect("sequence");
+    let frames = frames_of(&seq, opts.frames, opts.fps);
+    let a = run(&frames, seq.camera(), SlamOptions::default(), EventSink::none());
+    let b = run(&frames, seq.camera(), SlamOptions::default(), EventSink::none());
+    let dir = tempfile::tempdir().expect("tempdir");
+    let (pa, pb) = (dir.path().join("a"), dir.path().join("b"));
+    for (r, p) in [(&a, &pa), (&b, &pb)] {
+        std::fs::create_dir_all(p).expect("mkdir");
+        colslam_scene::write_model(&r.maps[0].map.rec, p, colslam_scene::ModelFormat::Binary).expect("write");
+    }
+    for f in ["cameras.bin", "images.bin", "points3D.bin"] {
+        assert_eq!(std::fs::read(pa.join(f)).expect("read"), std::fs::read(pb.join(f)).expect("read"), "{f} differs");
+    }
+    assert!(a.maps[0].map.rec.num_points3d() > 100);
+}
+
+fn synthetic_camera() -> colslam_camera::Camera {
+    colslam_camera::Camera::pinhole(320, 240, 262.5, 262.5, 159.5, 119.5)
+}
+
+fn frame(i: usize, image: Image) -> Frame {
+    Frame { index: i, source_index: i, timestamp: i as f64 / 30.0, name: format!("{i:06}.png"), image }
+}
+
+#[test]
+fn static_camera_finishes_with_a_report() {
+    let seq = SyntheticSequence::new(&small_synth(2, 3)).expect("sequence");
+    let img = seq.render(0).expect("render");
+    let frames: Vec<Frame> = (0..30).map(|i| frame(i, img.clone())).collect();
+    let r = run(&frames, &synthetic_camera(), SlamOptions::default(), EventSink::none());
+    // No motion, no map: every frame is reported as not localised.
+    assert_eq!(r.frames.len(), 30);
+    assert!(r.maps.is_empty());
+    assert_eq!(r.not_localized.len(), 30);
+    assert!(!r.notes.is_empty());
+}
+
+#[test]
+fn black_frames_and_two_frames_finish() {
+    let frames: Vec<Frame> = (0..10).map(|i| frame(i, Image::new(320, 240, 3))).collect();
+    let r = run(&frames, &synthetic_camera(), SlamOptions::default(), EventSink::none());
+    assert!(r.maps.is_empty());
+    assert_eq!(r.not_localized.len(), 10);
+
+    let seq = SyntheticSequence::new(&small_synth(40, 4)).expect("sequence");
+    let two = vec![frame(0, seq.render(0).expect("render")), frame(1, seq.render(39).expect("render"))];
+    let r = run(&two, seq.camera(), SlamOptions::default(), EventSink::none());
+    assert_eq!(r.frames.len(), 2);
+    assert!(r.maps.len() <= 1);
+}
+
+#[test]
+fn a_cut_to_another_scene_starts_a_new_map() {
+    let a = SyntheticSequence::new(&small_synth(40, 5)).expect("sequence");
+    let b = SyntheticSequence::new(&small_synth(40, 6)).expect("sequence");
+    let mut frames = frames_of(&a, 40, 30.0);
+    for (k, f) in frames_of(&b, 40, 30.0).into_iter().enumerate() {
+        frames.push(frame(40 + k, f.image));
+    }
+    let r = run(&frames, a.camera(), SlamOptions::default(), EventSink::none());
+    assert!(r.maps.len() >= 2, "maps: {}, notes: {:?}", r.maps.len(), r.notes);
+    let localized: usize = r.maps.iter().map(|m| m.poses.len()).sum();
+    assert!(localized >= 60, "only {localized} of 80 frames localised");
+}
+
+#[test]
+fn wrong_frame_size_is_an_error_not_a_panic() {
+    let mut slam = Slam::new(SlamOptions::default(), &synthetic_camera(), EventSink::none()).expect("options");
+    let e = slam.process(&frame(0, Image::new(100, 50, 1))).unwrap_err().to_string();
+    assert!(e.contains("100x50") && e.contains("320x240"), "{e}");
+    assert!(Slam::new(SlamOptions { min_matches: 0, ..SlamOptions::default() }, &synthetic_camera(), EventSink::none())
+        .is_err());
+}

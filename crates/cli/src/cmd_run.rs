@@ -5,6 +5,8 @@ use colslam_camera::{presets, Camera};
 use colslam_io::{open_source, FrameSource, SourceOptions};
 use colslam_slam::{write_outputs, write_report, EventSink, OutputFormat, RunReport, Slam, SlamOptions, Stage};
 use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
 use std::time::Instant;
 
 /// Focal length prior for unknown cameras, as a multiple of the larger image
@@ -41,6 +43,21 @@ pub struct PipelineArgs {
     /// Refine focal length and distortion in bundle adjustment.
     #[arg(long)]
     pub refine_intrinsics: bool,
+    /// Minimum triangulation angle of a 3D point, degrees.
+    #[arg(long, default_value_t = SlamOptions::default().min_tri_angle_deg)]
+    pub min_tri_angle: f64,
+    /// Minimum median triangulation angle of the initial pair, degrees.
+    #[arg(long, default_value_t = SlamOptions::default().init_min_tri_angle_deg)]
+    pub init_min_tri_angle: f64,
+    /// Previous keyframes a new keyframe is matched against.
+    #[arg(long, default_value_t = SlamOptions::default().match_keyframes)]
+    pub match_keyframes: usize,
+    /// Below this many matches to the last keyframe a keyframe is forced.
+    #[arg(long, default_value_t = SlamOptions::default().force_keyframe_matches)]
+    pub force_keyframe_matches: usize,
+    /// Accept keyframe candidates even when their motion is a pure rotation.
+    #[arg(long)]
+    pub allow_pure_rotation: bool,
     /// Worker threads (0: all cores).
     #[arg(long, default_value_t = 0)]
     pub threads: usize,
@@ -63,6 +80,11 @@ impl PipelineArgs {
             flow_threshold: self.flow_threshold,
             min_matches: self.min_matches,
             refine_intrinsics: self.refine_intrinsics,
+            min_tri_angle_deg: self.min_tri_angle,
+            init_min_tri_angle_deg: self.init_min_tri_angle,
+            match_keyframes: self.match_keyframes,
+            force_keyframe_matches: self.force_keyframe_matches,
+            reject_pure_rotation: !self.allow_pure_rotation,
             seed: self.seed,
             ..SlamOptions::default()
         }
@@ -135,8 +157,30 @@ pub struct RunOutcome {
     pub eval: Option<colslam_eval::EvalReport>,
 }
 
+/// Optional hooks into a run (the live viewer uses them); the default has
+/// none and costs nothing. Hooks run on the pipeline's thread, so they must
+/// not block.
+#[derive(Default)]
+pub struct RunHooks<'a> {
+    /// Checked before every frame: once set, no more frames are read and the
+    /// run finishes with the frames so far (outputs are written as usual, with
+    /// a note in the report).
+    pub cancel: Option<Arc<AtomicBool>>,
+    /// Called once with the run's camera, before the first frame.
+    pub on_camera: Option<Box<dyn FnMut(&Camera) + 'a>>,
+    /// Called with every decoded frame before the pipeline processes it.
+    pub before_frame: Option<Box<dyn FnMut(&colslam_io::Frame) + 'a>>,
+    /// Called with the pipeline after every processed frame.
+    pub after_frame: Option<Box<dyn FnMut(&Slam) + 'a>>,
+}
+
 /// Runs the pipeline on `args.input` into `args.output`.
 pub fn run_pipeline(args: &RunArgs, quiet: bool, events: EventSink) -> Result<RunOutcome> {
+    run_pipeline_with(args, quiet, events, RunHooks::default())
+}
+
+/// [`run_pipeline`] with hooks (cancellation, frames and pipeline state for a viewer).
+pub fn run_pipeline_with(args: &RunArgs, quiet: bool, events: EventSink, mut hooks: RunHooks<'_>) -> Result<RunOutcome> {
     let started = Instant::now();
     let p = &args.pipeline;
     if p.threads > 0 {
@@ -149,10 +193,21 @@ pub fn run_pipeline(args: &RunArgs, quiet: bool, events: EventSink) -> Result<Ru
     let (camera, guessed) = resolve_camera(args, source.as_ref())?;
     let mut opts = p.slam_options();
     opts.refine_intrinsics |= guessed;
+    if let Some(f) = hooks.on_camera.as_mut() {
+        f(&camera);
+    }
     let mut slam = Slam::new(opts.clone(), &camera, events)?;
+    let (mut cancelled_at, mut processed) = (None, 0usize);
+    if let Some(gt) = &args.gt {
+        slam.set_debug_ground_truth(colslam_eval::trajectory::Trajectory::read_tum(gt)?);
+    }
     tracing::info!("{}", source.describe());
     let pb = crate::logging::progress_bar(source.len_hint().unwrap_or(0) as u64, quiet, "frames");
     loop {
+        if hooks.cancel.as_ref().is_some_and(|c| c.load(Ordering::SeqCst)) {
+            cancelled_at = Some(processed);
+            break;
+        }
         let t = Instant::now();
         let next = source.next();
         slam.timings_mut().add(Stage::Decode, t.elapsed());
@@ -164,7 +219,14 @@ pub fn run_pipeline(args: &RunArgs, quiet: bool, events: EventSink) -> Result<Ru
                 continue;
             }
         };
+        if let Some(f) = hooks.before_frame.as_mut() {
+            f(&frame);
+        }
         slam.process(&frame).with_context(|| format!("processing frame {} ({})", frame.index, frame.name))?;
+        processed += 1;
+        if let Some(f) = hooks.after_frame.as_mut() {
+            f(&slam);
+        }
         pb.inc(1);
         pb.set_message(format!("{} kf", slam.num_keyframes()));
     }
@@ -175,6 +237,9 @@ pub fn run_pipeline(args: &RunArgs, quiet: bool, events: EventSink) -> Result<Ru
     let input = args.input.display().to_string();
     let mut report = write_outputs(&result, &args.output, &input, &opts, format)?;
     result.timings.add(Stage::Output, t.elapsed());
+    if let Some(n) = cancelled_at {
+        report.notes.push(format!("stopped on request after {n} frames"));
+    }
     report.timings_s = result.timings.clone();
     report.wall_time_s = started.elapsed().as_secs_f64();
     report.ms_per_frame = if report.frames > 0 { 1e3 * report.wall_time_s / report.frames as f64 } else { 0.0 };

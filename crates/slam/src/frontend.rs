@@ -4,9 +4,10 @@
 use crate::{SlamError, SlamOptions};
 use colslam_camera::{Camera, PixelConvention};
 use colslam_features::{
-    extractor_by_name, matcher_by_name, Descriptors, ExtractorOptions, FeatureExtractor, Features, Match, Matcher,
-    MatcherOptions,
+    extractor_by_name, matcher_by_name, Descriptors, ExtractorOptions, FeatureError, FeatureExtractor, Features, Match,
+    Matcher, MatcherOptions,
 };
+use colslam_xfeat::{LighterGlue, LighterGlueOptions, MnnCosineMatcher, MnnCosineOptions, XFeat, XFeatOptions};
 use colslam_geometry::Vec2;
 use colslam_image::Image;
 use colslam_io::Frame;
@@ -80,10 +81,8 @@ impl Frontend {
     /// pixel convention (as camera files, TUM and KITTI give it).
     pub fn new(options: &SlamOptions, camera_opencv: &Camera) -> Result<Self, SlamError> {
         camera_opencv.validate()?;
-        let mut eo = ExtractorOptions::default();
-        eo.orb.n_features = options.num_features;
-        let extractor = extractor_by_name(&options.features, &eo)?;
-        let matcher = matcher_by_name(&options.matcher, &MatcherOptions::default())?;
+        let extractor = make_extractor(options)?;
+        let matcher = make_matcher(options, camera_opencv)?;
         let camera = camera_opencv.convert_pixel_convention(PixelConvention::OpenCv, PixelConvention::Colmap);
         Ok(Self { extractor, matcher, camera })
     }
@@ -153,6 +152,49 @@ impl Frontend {
             return Ok(Vec::new());
         }
         Ok(self.matcher.match_features(&query.features, &train.features)?)
+    }
+}
+
+/// Names accepted for `features`.
+pub const FEATURE_NAMES: &[&str] = &["orb", "xfeat"];
+/// Names accepted for `matcher`.
+pub const MATCHER_NAMES: &[&str] = &["nn", "lighterglue"];
+
+/// The extractor named by the options: ORB from the features crate, XFeat
+/// from the xfeat crate (which sits above the features crate, so the name is
+/// resolved here).
+fn make_extractor(options: &SlamOptions) -> Result<Box<dyn FeatureExtractor>, SlamError> {
+    match options.features.to_ascii_lowercase().as_str() {
+        "xfeat" => {
+            let opts = XFeatOptions { top_k: options.num_features, ..XFeatOptions::default() };
+            Ok(Box::new(XFeat::new(opts).map_err(FeatureError::from)?))
+        }
+        name => {
+            let mut eo = ExtractorOptions::default();
+            eo.orb.n_features = options.num_features;
+            Ok(extractor_by_name(name, &eo)?)
+        }
+    }
+}
+
+/// The matcher named by the options. "nn" is Hamming nearest neighbour for
+/// binary descriptors and mutual nearest neighbour on cosine similarity for
+/// XFeat; "lighterglue" is the learned matcher for XFeat.
+fn make_matcher(options: &SlamOptions, camera: &Camera) -> Result<Box<dyn Matcher>, SlamError> {
+    let xfeat = options.features.eq_ignore_ascii_case("xfeat");
+    match (xfeat, options.matcher.to_ascii_lowercase().as_str()) {
+        (true, "nn") => Ok(Box::new(MnnCosineMatcher::new(MnnCosineOptions::default())?)),
+        (true, "lighterglue") => {
+            let size = [camera.width as usize, camera.height as usize];
+            let opts = LighterGlueOptions { image_size: Some(size), ..LighterGlueOptions::default() };
+            Ok(Box::new(LighterGlue::new(opts).map_err(FeatureError::from)?))
+        }
+        (false, "lighterglue") => Err(SlamError::InvalidOption {
+            name: "matcher",
+            value: options.matcher.clone(),
+            reason: "lighterglue matches XFeat features only (use --features xfeat)".into(),
+        }),
+        (_, name) => Ok(matcher_by_name(name, &MatcherOptions::default())?),
     }
 }
 

@@ -90,6 +90,9 @@ pub struct Slam {
     rejected_rotation: usize,
     forced_keyframes: usize,
     deregistered: usize,
+    /// Ground truth for diagnostics: when set, the keyframes' ATE is logged
+    /// (debug level) after every keyframe.
+    debug_gt: Option<colslam_eval::trajectory::Trajectory>,
 }
 
 impl std::fmt::Debug for Slam {
@@ -120,7 +123,42 @@ impl Slam {
             rejected_rotation: 0,
             forced_keyframes: 0,
             deregistered: 0,
+            debug_gt: None,
         })
+    }
+
+    /// Sets a ground-truth trajectory for diagnostics: the keyframes' ATE
+    /// (Sim(3)-aligned) is then logged at debug level after every keyframe.
+    pub fn set_debug_ground_truth(&mut self, gt: colslam_eval::trajectory::Trajectory) {
+        self.debug_gt = Some(gt);
+    }
+
+    fn log_keyframe_ate(&self) {
+        let (Some(gt), Some(map)) = (&self.debug_gt, &self.map) else { return };
+        if !tracing::enabled!(tracing::Level::DEBUG) {
+            return;
+        }
+        let mut kfs: Vec<(f64, colslam_geometry::Rigid3)> = map
+            .keyframes
+            .iter()
+            .filter_map(|k| map.rec.image(k.image_id).filter(|i| i.registered).map(|i| (k.data.timestamp, i.cam_from_world)))
+            .collect();
+        kfs.sort_by(|a, b| a.0.total_cmp(&b.0));
+        let est = colslam_eval::trajectory::Trajectory::from_cam_from_world(
+            kfs.iter().map(|k| k.0).collect(),
+            &kfs.iter().map(|k| k.1).collect::<Vec<_>>(),
+        );
+        match colslam_eval::evaluate(gt, &est, &colslam_eval::EvalOptions::default()) {
+            Ok(r) => tracing::debug!(
+                "map {}: {} keyframes, ATE {:.4} m (max {:.4} m), scale {:.4}",
+                map.index,
+                r.matched,
+                r.ate_rmse,
+                r.ate_max,
+                r.scale
+            ),
+            Err(e) => tracing::debug!("map {}: keyframe ATE not available: {e}", map.index),
+        }
     }
 
     /// Time spent so far per stage (the caller may add decoding time).
@@ -365,6 +403,7 @@ impl Slam {
             global = Some(map.global_ba(&self.opts, &mut self.timings)?);
         }
         self.emit_keyframe(image_id);
+        self.log_keyframe_ate();
         if let Some(r) = &global {
             let m = self.map.as_ref().map_or(0, |m| m.index);
             self.events.send(SlamEvent::BundleAdjusted {

@@ -8,10 +8,12 @@ time and cost, to set beside colslam-optim's numbers on the same data.
 The model is read, adjusted in memory and not written back. By default the
 solver tolerances are set to Ceres' own defaults (function 1e-6, gradient
 1e-10, parameter 1e-8), which colslam-optim also uses; --colmap-tolerances
-keeps COLMAP's (0, 1e-4, 0). The gauge is COLMAP's TWO_CAMS_FROM_WORLD.
+keeps COLMAP's (0, 1e-4, 0). The gauge is COLMAP's TWO_CAMS_FROM_WORLD
+(or none with --gauge none).
 """
 
 import argparse
+import json
 import sys
 import time
 
@@ -34,6 +36,9 @@ def main() -> int:
     ap.add_argument("--max-iterations", type=int, default=100)
     ap.add_argument("--colmap-tolerances", action="store_true",
                     help="keep COLMAP's tolerances instead of Ceres' defaults")
+    ap.add_argument("--gauge", choices=["two_cams", "none"], default="two_cams",
+                    help="COLMAP's TWO_CAMS_FROM_WORLD gauge, or none (free gauge, LM damping only)")
+    ap.add_argument("--json", action="store_true", help="print one JSON object instead of text")
     ap.add_argument("--fixed-intrinsics", action="store_true", help="do not refine focal length and extra params")
     args = ap.parse_args()
 
@@ -56,7 +61,8 @@ def main() -> int:
     config = pycolmap.BundleAdjustmentConfig()
     for image_id in rec.reg_image_ids():
         config.add_image(image_id)
-    config.fix_gauge(pycolmap.BundleAdjustmentGauge.TWO_CAMS_FROM_WORLD)
+    if args.gauge == "two_cams":
+        config.fix_gauge(pycolmap.BundleAdjustmentGauge.TWO_CAMS_FROM_WORLD)
 
     t0 = time.perf_counter()
     adjuster = pycolmap.create_default_bundle_adjuster(opts, config, rec)
@@ -66,6 +72,15 @@ def main() -> int:
     t2 = time.perf_counter()
     c2 = time.process_time()
     ceres = getattr(summary, "ceres_summary", None)
+    if args.json:
+        out = {"num_residuals": summary.num_residuals, "solve_wall_s": t2 - t1, "solve_cpu_s": c2 - c1}
+        if ceres is not None:
+            out.update(initial_cost=ceres.initial_cost, final_cost=ceres.final_cost,
+                       iterations=ceres.num_successful_steps + ceres.num_unsuccessful_steps,
+                       successful_steps=ceres.num_successful_steps,
+                       linear_solver=str(ceres.linear_solver_type_used), termination=str(ceres.termination_type))
+        print(json.dumps(out))
+        return 0
     print(f"model: {args.model}")
     print(f"images {rec.num_reg_images()}, points {rec.num_points3D()}, residuals {summary.num_residuals}")
     print(f"loss {args.loss}({args.scale}), threads {args.threads}")

@@ -11,9 +11,8 @@
 //! `scripts/bench-ba-ceres.py`, which runs pycolmap's Ceres bundle adjustment
 //! on the same data.
 
-use colslam_optim::synthetic::{perturb, synthetic_scene, SyntheticOptions};
-use colslam_optim::{BaOptions, BundleAdjuster, LinearSolverType, LossFunction, Problem};
-use std::fmt::Write as _;
+use colslam_optim::synthetic::{perturb, synthetic_scene, write_colmap_text, SyntheticOptions};
+use colslam_optim::{BaOptions, BundleAdjuster, LinearSolverType, LossFunction};
 use std::path::Path;
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
@@ -85,52 +84,4 @@ fn process_cpu_seconds() -> f64 {
     let f: Vec<&str> = rest.split_whitespace().collect();
     let ticks = |i: usize| f.get(i).and_then(|v| v.parse::<f64>().ok()).unwrap_or(f64::NAN);
     (ticks(11) + ticks(12)) / 100.0
-}
-
-/// Writes the problem as a COLMAP text model (one camera, image ids and
-/// point ids 1-based, image names `<index>.png`).
-fn write_colmap_text(problem: &Problem, dir: &Path) -> std::io::Result<()> {
-    std::fs::create_dir_all(dir)?;
-    let mut cams = String::from("# CAMERA_ID, MODEL, WIDTH, HEIGHT, PARAMS[]\n");
-    for (i, c) in problem.cameras.iter().enumerate() {
-        let params: Vec<String> = c.camera.params.iter().map(|v| format!("{v:.17}")).collect();
-        let _ = writeln!(cams, "{} {} {} {} {}", i + 1, c.camera.model.name(), c.camera.width, c.camera.height, params.join(" "));
-    }
-    // Per image: its observations, in order (POINT2D_IDX = position).
-    let mut per_image: Vec<Vec<usize>> = vec![Vec::new(); problem.poses.len()];
-    let mut track: Vec<Vec<(usize, usize)>> = vec![Vec::new(); problem.points.len()];
-    for (k, o) in problem.observations.iter().enumerate() {
-        track[o.point].push((o.pose + 1, per_image[o.pose].len()));
-        per_image[o.pose].push(k);
-    }
-    let mut images = String::from("# IMAGE_ID, QW, QX, QY, QZ, TX, TY, TZ, CAMERA_ID, NAME\n# POINTS2D[] as (X, Y, POINT3D_ID)\n");
-    for (i, p) in problem.poses.iter().enumerate() {
-        let q = p.cam_from_world.quat_wxyz();
-        let t = p.cam_from_world.translation;
-        let cam = per_image[i].first().map(|&k| problem.observations[k].camera).unwrap_or(0);
-        let _ = writeln!(
-            images,
-            "{} {:.17} {:.17} {:.17} {:.17} {:.17} {:.17} {:.17} {} {}.png",
-            i + 1, q[0], q[1], q[2], q[3], t.x, t.y, t.z, cam + 1, i
-        );
-        let obs: Vec<String> = per_image[i]
-            .iter()
-            .map(|&k| {
-                let o = &problem.observations[k];
-                format!("{:.17} {:.17} {}", o.pixel.x, o.pixel.y, o.point + 1)
-            })
-            .collect();
-        let _ = writeln!(images, "{}", obs.join(" "));
-    }
-    let mut pts = String::from("# POINT3D_ID, X, Y, Z, R, G, B, ERROR, TRACK[] as (IMAGE_ID, POINT2D_IDX)\n");
-    for (j, p) in problem.points.iter().enumerate() {
-        let tr: Vec<String> = track[j].iter().map(|(i, k)| format!("{i} {k}")).collect();
-        let _ = writeln!(pts, "{} {:.17} {:.17} {:.17} 128 128 128 0 {}", j + 1, p.xyz.x, p.xyz.y, p.xyz.z, tr.join(" "));
-    }
-    for (name, text) in [("cameras.txt", cams), ("images.txt", images), ("points3D.txt", pts)] {
-        let tmp = dir.join(format!(".{name}.tmp"));
-        std::fs::write(&tmp, text)?;
-        std::fs::rename(&tmp, dir.join(name))?;
-    }
-    Ok(())
 }

@@ -10,7 +10,7 @@
 
 use crate::problem::{IntrinsicsRefinement, Problem};
 use crate::residual::reprojection_residual;
-use crate::BaOptions;
+use crate::{BaOptions, BehindCamera};
 
 /// Pose blocks per group in the camera-side assembly pass (more than a
 /// typical track length, so that a group's observations are dense).
@@ -60,6 +60,9 @@ impl<T: Copy + Default> Csr<T> {
     }
 }
 
+/// `(observation, pose block, camera block)` of a pose group's pass.
+pub(crate) type GroupObs = (usize, usize, Option<usize>);
+
 /// What a reduced-system block parameterises.
 #[derive(Debug, Clone)]
 pub(crate) enum BlockKind {
@@ -100,6 +103,9 @@ pub(crate) struct ObsRef {
 /// The layout of one solve.
 #[derive(Debug, Clone)]
 pub(crate) struct Layout {
+    /// Observations that do not project get a zero residual
+    /// ([`crate::BehindCamera::ZeroResidual`]) instead of failing the evaluation.
+    pub zero_unprojectable: bool,
     pub blocks: Vec<Block>,
     /// Number of pose blocks (they come first).
     pub num_pose_blocks: usize,
@@ -124,7 +130,7 @@ pub(crate) struct Layout {
     /// observations are nearly contiguous and its pass streams through the
     /// Jacobians instead of hopping (one pose alone sees one observation in
     /// every track-length many).
-    pub pose_group_obs: Csr<(usize, usize, Option<usize>)>,
+    pub pose_group_obs: Csr<GroupObs>,
     /// Sorted blocks touched by each variable point (the "entries" whose
     /// W = J_c^T J_p blocks the assembly stores).
     pub point_blocks: Csr<usize>,
@@ -179,10 +185,13 @@ impl Layout {
         // 1. Observations that project at the start are used; the others are
         // skipped for the whole solve (a step that makes a used one
         // unprojectable is rejected instead).
+        let zero_unprojectable = options.behind_camera == BehindCamera::ZeroResidual;
         let mut used: Vec<usize> = Vec::with_capacity(problem.observations.len());
         for (i, o) in problem.observations.iter().enumerate() {
             let (cam, pose, pt) = (&problem.cameras[o.camera], &problem.poses[o.pose], &problem.points[o.point]);
-            if reprojection_residual(&cam.camera, &pose.cam_from_world, &pt.xyz, &o.pixel).is_some() {
+            let keep = zero_unprojectable
+                || reprojection_residual(&cam.camera, &pose.cam_from_world, &pt.xyz, &o.pixel).is_some();
+            if keep {
                 used.push(i);
             }
         }
@@ -288,7 +297,7 @@ impl Layout {
         let point_obs = Csr::from_pairs(var_points.len(), &pairs);
         let pairs: Vec<(usize, usize)> = obs.iter().enumerate().filter_map(|(k, o)| o.cam_block.map(|b| (b, k))).collect();
         let block_obs = Csr::from_pairs(blocks.len(), &pairs);
-        let pairs: Vec<(usize, (usize, usize, Option<usize>))> = obs
+        let pairs: Vec<(usize, GroupObs)> = obs
             .iter()
             .enumerate()
             .filter_map(|(k, o)| o.pose_block.map(|b| (b / POSE_GROUP, (k, b, o.cam_block))))
@@ -344,26 +353,43 @@ impl Layout {
         }
         let schur_task_points = Csr::from_pairs(schur_tasks.len(), &tp_pairs);
 
-        // 5. Pattern of the reduced matrix (upper block triangle).
-        let mut rows: Vec<Vec<usize>> = (0..blocks.len()).map(|b| vec![b]).collect();
-        for o in &obs {
-            if let (Some(p), Some(c)) = (o.pose_block, o.cam_block) {
-                rows[p].push(c);
-            }
-        }
-        for j in 0..var_points.len() {
-            let row = point_blocks.row(j);
-            for (a, &b1) in row.iter().enumerate() {
-                rows[b1].extend_from_slice(&row[a..]);
-            }
-        }
+        // 5. Pattern of the reduced matrix (upper block triangle), one row at
+        // a time with a marker array, so the temporary memory is the pattern
+        // itself (not the sum of squared track lengths).
+        let nb = blocks.len();
+        let mut direct: Vec<(usize, usize)> =
+            obs.iter().filter_map(|o| o.pose_block.zip(o.cam_block)).collect();
+        direct.sort_unstable();
+        direct.dedup();
+        let direct = Csr::from_pairs(nb, &direct);
+        let mut mark = vec![usize::MAX; nb];
         let mut s_pairs = Vec::new();
-        for (b, r) in rows.iter_mut().enumerate() {
-            r.sort_unstable();
-            r.dedup();
-            s_pairs.extend(r.iter().map(|&c| (b, c)));
+        let mut cols = Vec::new();
+        for (t, &(b0, b1)) in schur_tasks.iter().enumerate() {
+            for b in b0..b1 {
+                cols.clear();
+                cols.push(b);
+                mark[b] = b;
+                for &c in direct.row(b) {
+                    if mark[c] != b {
+                        mark[c] = b;
+                        cols.push(c);
+                    }
+                }
+                for &j in schur_task_points.row(t) {
+                    let row = point_blocks.row(j);
+                    let Ok(p) = row.binary_search(&b) else { continue };
+                    for &c in &row[p..] {
+                        if mark[c] != b {
+                            mark[c] = b;
+                            cols.push(c);
+                        }
+                    }
+                }
+                cols.sort_unstable();
+                s_pairs.extend(cols.iter().map(|&c| (b, c)));
+            }
         }
-        drop(rows);
         let s_cols = Csr::from_pairs(blocks.len(), &s_pairs);
         let mut s_offset = Vec::with_capacity(s_cols.val.len() + 1);
         let mut acc = 0;
@@ -386,6 +412,7 @@ impl Layout {
         let s_lower = Csr::from_pairs(blocks.len(), &low_pairs);
 
         Self {
+            zero_unprojectable,
             blocks,
             num_pose_blocks,
             reduced_dim,

@@ -21,6 +21,22 @@ pub enum LinearSolverType {
     IterativeSchur,
 }
 
+/// Treatment of observations whose point does not project (behind the
+/// camera or on its plane).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum BehindCamera {
+    /// Residual and Jacobian are zero, as in COLMAP 4's Ceres cost
+    /// functions (so pycolmap gives the same costs and steps). A point that
+    /// BA moves behind a camera stops costing anything there; the mapper's
+    /// negative-depth filter removes such observations after BA.
+    #[default]
+    ZeroResidual,
+    /// Stricter: observations not projecting at the start are skipped, and a
+    /// step that moves a used observation's point behind its camera is
+    /// rejected.
+    Reject,
+}
+
 /// Options of [`crate::BundleAdjuster::solve`].
 #[derive(Debug, Clone, PartialEq)]
 pub struct BaOptions {
@@ -60,6 +76,10 @@ pub struct BaOptions {
     /// Variable points with fewer observations than this are held constant
     /// (a point seen once is not constrained). Default 2.
     pub min_point_observations: usize,
+    /// What an observation whose point does not project (behind the camera)
+    /// contributes. Default [`BehindCamera::ZeroResidual`] (COLMAP 4's cost
+    /// functions).
+    pub behind_camera: BehindCamera,
 }
 
 impl Default for BaOptions {
@@ -81,6 +101,7 @@ impl Default for BaOptions {
             pcg_tolerance: 1e-6,
             pcg_max_iterations: 500,
             min_point_observations: 2,
+            behind_camera: BehindCamera::ZeroResidual,
         }
     }
 }
@@ -165,7 +186,8 @@ pub struct BaReport {
     /// Observations used.
     pub num_observations: usize,
     /// Observations skipped because their point did not project at the start
-    /// (behind the camera, or outside the model's domain).
+    /// (with [`BehindCamera::Reject`]; always 0 with
+    /// [`BehindCamera::ZeroResidual`]).
     pub num_skipped_observations: usize,
     /// Variable poses.
     pub num_variable_poses: usize,
@@ -237,6 +259,14 @@ pub enum BaError {
     /// The thread pool could not be built.
     #[error("cannot build a thread pool of {0} threads: {1}")]
     ThreadPool(usize, String),
+    /// A file could not be written.
+    #[error("cannot write {path}: {message}")]
+    Io {
+        /// The file or folder.
+        path: std::path::PathBuf,
+        /// The operating-system error.
+        message: String,
+    },
     /// The sparse solver failed to allocate or analyse the system.
     #[error("linear solver failure: {0}")]
     LinearSolver(String),

@@ -283,6 +283,7 @@ fn solve_impl(problem: &mut Problem, options: &BaOptions) -> Result<BaReport, Ba
 /// `0.5 * sum rho(|r|^2)` over the used observations; `None` when one of them
 /// does not project.
 fn evaluate_cost(problem: &Problem, layout: &Layout, state: &State, loss: &LossFunction) -> Option<f64> {
+    let zero_unprojectable = layout.zero_unprojectable;
     let partial: Vec<Option<f64>> = layout
         .obs
         .par_chunks(OBS_CHUNK)
@@ -290,7 +291,13 @@ fn evaluate_cost(problem: &Problem, layout: &Layout, state: &State, loss: &LossF
             let mut sum = 0.0;
             for o in chunk {
                 let pixel = problem.observations[o.obs].pixel;
-                let r = reprojection_residual(&state.cameras[o.camera], &state.poses[o.pose], &state.points[o.point], &pixel)?;
+                let r = reprojection_residual(&state.cameras[o.camera], &state.poses[o.pose], &state.points[o.point], &pixel);
+                let Some(r) = r else {
+                    if zero_unprojectable {
+                        continue;
+                    }
+                    return None;
+                };
                 sum += loss.evaluate(r.norm_squared()).rho;
             }
             Some(sum)
@@ -306,6 +313,7 @@ fn evaluate_cost(problem: &Problem, layout: &Layout, state: &State, loss: &LossF
 /// Evaluates robustified residuals and Jacobians; returns the cost, or `None`
 /// when an observation does not project.
 fn linearize(problem: &Problem, layout: &Layout, state: &State, loss: &LossFunction, jac: &mut Jacobians) -> Option<f64> {
+    let zero_unprojectable = layout.zero_unprojectable;
     let stride = jac.cam_stride2;
     let partial: Vec<Option<f64>> = jac
         .r
@@ -323,7 +331,18 @@ fn linearize(problem: &Problem, layout: &Layout, state: &State, loss: &LossFunct
                     &state.poses[o.pose],
                     &state.points[o.point],
                     &pixel,
-                )?;
+                );
+                let Some(rj) = rj else {
+                    if !zero_unprojectable {
+                        return None;
+                    }
+                    // Zero residual and Jacobian (the buffers are reused).
+                    rs[k] = [0.0; 2];
+                    jps[k] = [0.0; 2 * POSE_DIM];
+                    jpts[k] = [0.0; 6];
+                    jcs[k * stride..(k + 1) * stride].iter_mut().for_each(|v| *v = 0.0);
+                    continue;
+                };
                 let r = rj.residual;
                 let s = r.norm_squared();
                 if !s.is_finite() {

@@ -8,6 +8,8 @@ use crate::residual::reprojection_residual;
 use crate::BaError;
 use colslam_camera::{Camera, CameraModelId};
 use colslam_geometry::{Quat, Rigid3, SplitMix64, Vec2, Vec3};
+use std::fmt::Write as _;
+use std::path::Path;
 
 /// Attempts at drawing a point seen by at least two poses before giving up
 /// on that point.
@@ -166,4 +168,58 @@ pub fn perturb(problem: &mut Problem, rotation_sigma: f64, translation_sigma: f6
     for p in &mut problem.points {
         p.xyz += n3(point_sigma);
     }
+}
+
+/// Writes a problem as a COLMAP text model (`cameras.txt`, `images.txt`,
+/// `points3D.txt` in `dir`), to run COLMAP's or pycolmap's bundle adjustment
+/// on the same data. Ids are 1-based indices (camera `i + 1`, image `i + 1`
+/// named `<i>.png`, point `j + 1`); each image's camera is that of its first
+/// observation.
+pub fn write_colmap_text(problem: &Problem, dir: &Path) -> Result<(), BaError> {
+    let io = |path: &Path, e: std::io::Error| BaError::Io { path: path.to_path_buf(), message: e.to_string() };
+    std::fs::create_dir_all(dir).map_err(|e| io(dir, e))?;
+    let mut cams = String::from("# CAMERA_ID, MODEL, WIDTH, HEIGHT, PARAMS[]\n");
+    for (i, c) in problem.cameras.iter().enumerate() {
+        let params: Vec<String> = c.camera.params.iter().map(|v| format!("{v:.17}")).collect();
+        let _ = writeln!(cams, "{} {} {} {} {}", i + 1, c.camera.model.name(), c.camera.width, c.camera.height, params.join(" "));
+    }
+    // Per image: its observations, in order (POINT2D_IDX = position).
+    let mut per_image: Vec<Vec<usize>> = vec![Vec::new(); problem.poses.len()];
+    let mut track: Vec<Vec<(usize, usize)>> = vec![Vec::new(); problem.points.len()];
+    for (k, o) in problem.observations.iter().enumerate() {
+        track[o.point].push((o.pose + 1, per_image[o.pose].len()));
+        per_image[o.pose].push(k);
+    }
+    let mut images = String::from("# IMAGE_ID, QW, QX, QY, QZ, TX, TY, TZ, CAMERA_ID, NAME\n# POINTS2D[] as (X, Y, POINT3D_ID)\n");
+    for (i, p) in problem.poses.iter().enumerate() {
+        let q = p.cam_from_world.quat_wxyz();
+        let t = p.cam_from_world.translation;
+        let cam = per_image[i].first().map(|&k| problem.observations[k].camera).unwrap_or(0);
+        let _ = writeln!(
+            images,
+            "{} {:.17} {:.17} {:.17} {:.17} {:.17} {:.17} {:.17} {} {}.png",
+            i + 1, q[0], q[1], q[2], q[3], t.x, t.y, t.z, cam + 1, i
+        );
+        let obs: Vec<String> = per_image[i]
+            .iter()
+            .map(|&k| {
+                let o = &problem.observations[k];
+                format!("{:.17} {:.17} {}", o.pixel.x, o.pixel.y, o.point + 1)
+            })
+            .collect();
+        let _ = writeln!(images, "{}", obs.join(" "));
+    }
+    let mut pts = String::from("# POINT3D_ID, X, Y, Z, R, G, B, ERROR, TRACK[] as (IMAGE_ID, POINT2D_IDX)\n");
+    for (j, p) in problem.points.iter().enumerate() {
+        let tr: Vec<String> = track[j].iter().map(|(i, k)| format!("{i} {k}")).collect();
+        let _ = writeln!(pts, "{} {:.17} {:.17} {:.17} 128 128 128 0 {}", j + 1, p.xyz.x, p.xyz.y, p.xyz.z, tr.join(" "));
+    }
+    for (name, text) in [("cameras.txt", cams), ("images.txt", images), ("points3D.txt", pts)] {
+        // Temp-then-rename: a reader never sees a half-written file.
+        let tmp = dir.join(format!(".{name}.tmp"));
+        let path = dir.join(name);
+        std::fs::write(&tmp, text).map_err(|e| io(&tmp, e))?;
+        std::fs::rename(&tmp, &path).map_err(|e| io(&path, e))?;
+    }
+    Ok(())
 }

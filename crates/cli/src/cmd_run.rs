@@ -157,6 +157,9 @@ pub struct RunOutcome {
     pub eval: Option<colslam_eval::EvalReport>,
 }
 
+/// A hook called with a value of the run (see [`RunHooks`]).
+pub type Hook<'a, T> = Box<dyn FnMut(&T) + 'a>;
+
 /// Optional hooks into a run (the live viewer uses them); the default has
 /// none and costs nothing. Hooks run on the pipeline's thread, so they must
 /// not block.
@@ -167,11 +170,11 @@ pub struct RunHooks<'a> {
     /// a note in the report).
     pub cancel: Option<Arc<AtomicBool>>,
     /// Called once with the run's camera, before the first frame.
-    pub on_camera: Option<Box<dyn FnMut(&Camera) + 'a>>,
+    pub on_camera: Option<Hook<'a, Camera>>,
     /// Called with every decoded frame before the pipeline processes it.
-    pub before_frame: Option<Box<dyn FnMut(&colslam_io::Frame) + 'a>>,
+    pub before_frame: Option<Hook<'a, colslam_io::Frame>>,
     /// Called with the pipeline after every processed frame.
-    pub after_frame: Option<Box<dyn FnMut(&Slam) + 'a>>,
+    pub after_frame: Option<Hook<'a, Slam>>,
 }
 
 /// Runs the pipeline on `args.input` into `args.output`.

@@ -10,7 +10,9 @@ mod cmd_eval;
 mod cmd_export;
 mod cmd_info;
 mod cmd_run;
+mod cmd_view;
 mod logging;
+mod viewer_bridge;
 
 use anyhow::Result;
 use clap::{Parser, Subcommand};
@@ -36,25 +38,17 @@ enum Command {
     /// truth) and run on it.
     Demo(cmd_demo::DemoArgs),
     /// Run the SLAM pipeline on a video or an image sequence.
-    Run(cmd_run::RunArgs),
+    Run(cmd_view::RunCommand),
     /// Evaluate an estimated trajectory against ground truth (ATE, RPE, plot).
     Eval(cmd_eval::EvalArgs),
     /// Benchmarks (features, estimators, BA, whole sequences).
     Bench(bench::BenchArgs),
     /// Browser viewer for a reconstruction or a live run.
-    View(PendingArgs),
+    View(cmd_view::ViewArgs),
     /// Convert or export a COLMAP model (binary, text, PLY, TUM trajectory).
     Export(cmd_export::ExportArgs),
     /// Describe a COLMAP model folder or an input sequence/video.
     Info(cmd_info::InfoArgs),
-}
-
-/// Arguments of subcommands not built yet.
-#[derive(Debug, clap::Args)]
-struct PendingArgs {
-    /// Arguments (ignored).
-    #[arg(trailing_var_arg = true, allow_hyphen_values = true)]
-    rest: Vec<String>,
 }
 
 fn main() -> std::process::ExitCode {
@@ -76,8 +70,8 @@ fn dispatch(cli: Cli) -> Result<()> {
         Command::Eval(a) => cmd_eval::run(&a),
         Command::Export(a) => cmd_export::run(&a),
         Command::Info(a) => cmd_info::run(&a),
-        Command::Run(a) => cmd_run::run(&a, quiet),
+        Command::Run(a) => cmd_view::run_command(&a, quiet),
         Command::Bench(a) => bench::run(&a, quiet),
-        Command::View(_) => anyhow::bail!("`colslam view` is not built yet"),
+        Command::View(a) => cmd_view::run(&a),
     }
 }

@@ -11,6 +11,7 @@ pub mod error;
 pub mod events;
 pub mod frontend;
 pub mod map;
+pub mod merge;
 pub mod options;
 pub mod output;
 pub mod pipeline;

@@ -285,16 +285,20 @@ impl MapState {
 
     /// Filters the given points (all when `None`) by reprojection error and
     /// triangulation angle (COLMAP's `FilterPoints`).
-    fn filter(&mut self, points: Option<&[Point3DId]>, opts: &SlamOptions) -> Result<usize, SfmError> {
+    pub(crate) fn filter(&mut self, points: Option<&[Point3DId]>, opts: &SlamOptions) -> Result<usize, SfmError> {
+        // Bundle adjustment gives points behind a camera zero cost (as
+        // COLMAP's cost functions do), so those observations go first.
+        let d = self.rec.filter_negative_depth(points)?;
         let a = self.rec.filter_by_reprojection_error(opts.max_reproj_error_px, points)?;
         let b = self.rec.filter_by_triangulation_angle(opts.min_tri_angle_deg, points)?;
         tracing::trace!(
-            "filter: reprojection removed {} observations / {} points, angle removed {} points",
+            "filter: depth removed {} observations, reprojection {} observations / {} points, angle {} points",
+            d.observations_removed,
             a.observations_removed,
             a.points_deleted,
             b.points_deleted
         );
-        Ok(a.points_deleted + b.points_deleted)
+        Ok(d.points_deleted + a.points_deleted + b.points_deleted)
     }
 
     /// Global bundle adjustment, then normalisation, merge/complete of all
@@ -494,12 +498,11 @@ impl MapState {
             self.global_ba(opts, timings)?;
         }
         self.rec.update_point_errors()?;
-        self.color_points();
         Ok(())
     }
 
     /// Colours each point with the mean keypoint colour over its track.
-    fn color_points(&mut self) {
+    pub fn color_points(&mut self) {
         let colors: HashMap<ImageId, &Vec<[u8; 3]>> =
             self.keyframes.iter().map(|k| (k.image_id, &k.data.colors)).collect();
         let mut updates = Vec::new();

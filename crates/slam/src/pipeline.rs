@@ -18,6 +18,10 @@ use std::collections::HashMap;
 /// to it as well, then dropped). Bounds memory on long static stretches.
 const MAX_PENDING_FRAMES: usize = 60;
 
+/// Frames kept for relocalisation at the end (those no map tracked when they
+/// came); bounds memory on long failures (about 0.2 MB per frame).
+const MAX_ORPHANS: usize = 500;
+
 /// Flow lines sent per frame event (a subsample of the matches).
 const MAX_FLOW_LINES: usize = 300;
 
@@ -83,6 +87,8 @@ pub struct Slam {
     prev: Option<(FrameData, Vec<Match>, usize)>,
     /// Non-keyframes since the last keyframe, with their record indices.
     pending: Vec<(FrameData, usize)>,
+    /// Frames no map tracked when they came (relocalised at the end).
+    orphans: Vec<FrameData>,
     lost: usize,
     frames: Vec<FrameInfo>,
     timings: StageTimings,
@@ -116,6 +122,7 @@ impl Slam {
             finished: Vec::new(),
             prev: None,
             pending: Vec::new(),
+            orphans: Vec::new(),
             lost: 0,
             frames: Vec::new(),
             timings: StageTimings::default(),
@@ -241,7 +248,9 @@ impl Slam {
             tracing::warn!("{note}");
             self.notes.push(note);
             let keep = window.len() / 2;
-            let rest = window.into_iter().skip(n - keep).collect();
+            let mut window = window;
+            let rest = window.split_off(n - keep);
+            self.add_orphans(window);
             self.state = State::Initializing { window: rest };
             return Ok(());
         };
@@ -358,6 +367,7 @@ impl Slam {
         let rec_idx = map.records.len() - 1;
         if n < self.opts.min_matches || failed_attempt {
             self.lost += 1;
+            self.add_orphans(vec![data.clone()]);
         } else {
             self.lost = 0;
         }
@@ -415,6 +425,17 @@ impl Slam {
         }
         self.emit_map(global.is_some());
         Ok(true)
+    }
+
+    fn add_orphans(&mut self, frames: Vec<FrameData>) {
+        for f in frames {
+            if self.orphans.len() >= MAX_ORPHANS {
+                return;
+            }
+            if self.orphans.last().is_none_or(|o| o.index != f.index) {
+                self.orphans.push(f);
+            }
+        }
     }
 
     fn reset_map(&mut self) -> Result<(), SlamError> {
@@ -536,13 +557,51 @@ impl Slam {
         if matches!(self.state, State::Initializing { .. }) {
             self.try_initialize(true)?;
         }
+        if let State::Initializing { window } = &mut self.state {
+            let rest = std::mem::take(window);
+            self.add_orphans(rest);
+        }
         if let Some(map) = self.map.take() {
             self.finished.push(map);
         }
         let focal = self.focal();
-        let mut maps = Vec::new();
-        for mut map in std::mem::take(&mut self.finished) {
+        let mut finished = std::mem::take(&mut self.finished);
+        for map in &mut finished {
             map.finalize(&self.opts, &mut self.timings)?;
+        }
+        // Offline recovery: merge maps into the largest where they overlap.
+        finished.sort_by(|a, b| {
+            b.rec.num_registered_images().cmp(&a.rec.num_registered_images()).then(a.index.cmp(&b.index))
+        });
+        let mut kept: Vec<MapState> = Vec::new();
+        for map in finished {
+            let mut merged = false;
+            if let Some(base) = kept.first_mut() {
+                merged = crate::merge::try_merge(base, &map, &self.frontend, &self.opts, &mut self.timings)?.is_some();
+                if merged {
+                    self.notes.push(format!("map {} merged into map {}", map.index, base.index));
+                }
+            }
+            if !merged {
+                kept.push(map);
+            }
+        }
+        let mut maps = Vec::new();
+        for mut map in kept {
+            let extra =
+                crate::merge::relocalization_records(&map, &self.orphans, &self.frontend, &mut self.timings)?;
+            let mut by_index: HashMap<usize, usize> =
+                map.records.iter().enumerate().map(|(i, r)| (r.index, i)).collect();
+            for r in extra {
+                match by_index.get(&r.index) {
+                    Some(&i) => map.records[i].obs.extend(r.obs),
+                    None => {
+                        by_index.insert(r.index, map.records.len());
+                        map.records.push(r);
+                    }
+                }
+            }
+            map.color_points();
             let (poses, _failed) = map.localize_all(focal, &self.opts, &mut self.timings);
             maps.push(MapResult { map, poses });
         }

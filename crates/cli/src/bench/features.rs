@@ -1,6 +1,51 @@
-//! `colslam bench features` (being built).
+//! `colslam bench features`: our ORB extractor and Hamming matcher against
+//! OpenCV's ORB and BFMatcher (issue 3), side by side in one run on the real
+//! frames of the TUM fr1/rpy subset.
+//!
+//! * Extraction: median over frames of the best of `--repeats` runs, per
+//!   640x480 frame, at 1000 and 2000 keypoints; ours in a local rayon pool of
+//!   1 thread (OpenCV runs with `cv2.setNumThreads(1)`) and of 2 threads.
+//! * Matching: 2000 x 2000 descriptors of consecutive frames, mutual nearest
+//!   neighbours, no ratio or distance filter on either side (what
+//!   `BFMatcher(NORM_HAMMING, crossCheck=True)` does); ours on 2 threads.
+//! * Quality: matches of consecutive frames at 1000 keypoints scored for
+//!   both libraries by the same Sampson check against the ground-truth
+//!   relative pose (undistorted with the dataset's FULL_OPENCV camera).
+//!
+//! The OpenCV side is `scripts/peers/bench_features.py`, run by the peer
+//! venv's interpreter (`COLSLAM_PYTHON`, else `./.venv/bin/python`).
 
-use anyhow::{bail, Result};
+use std::path::{Path, PathBuf};
+use std::process::Command;
+use std::time::Instant;
+
+use anyhow::{Context, Result, anyhow, bail};
+use colslam_camera::Camera;
+use colslam_eval::Trajectory;
+use colslam_features::{Features, NnMatcher, NnMatcherOptions, OrbExtractor, OrbOptions};
+use colslam_geometry::{Mat3, Rigid3, Vec2, Vec3};
+use colslam_image::Image;
+use serde_json::{Value, json};
+
+/// Dataset the benchmark runs on.
+const DATASET: &str = "tum_fr1_rpy_sub";
+/// Keypoint counts timed.
+const TIMING_FEATURES: [usize; 2] = [1000, 2000];
+/// Keypoint count of the match-quality pairs (ORB-SLAM's default for VGA).
+const QUALITY_FEATURES: usize = 1000;
+/// Threads of the "multi-threaded" runs (the project machine has 2 cores).
+const MULTI_THREADS: usize = 2;
+/// Sampson error (pixels) under which a match agrees with the ground truth.
+const SAMPSON_MAX_PX: f64 = 1.0;
+/// OpenCV's FAST threshold for the headline runs: ORB-SLAM's fallback
+/// threshold (our `min_fast_threshold`), so that OpenCV returns the requested
+/// keypoint count on these blurry frames (at its default of 20 it returns
+/// about 1600 of 2000).
+const OPENCV_FAST_THRESHOLD_MATCHED: u8 = 7;
+/// OpenCV's default FAST threshold, reported too.
+const OPENCV_FAST_THRESHOLD_DEFAULT: u8 = 20;
+/// Largest gap (s) between an image stamp and its ground-truth pose.
+const MAX_STAMP_GAP: f64 = 0.02;
 
 /// Arguments of `bench features`.
 #[derive(Debug, clap::Args)]
@@ -8,9 +53,511 @@ pub struct Args {
     /// Print one JSON object.
     #[arg(long)]
     pub json: bool,
+    /// Number of consecutive frames used (from the start of the sequence).
+    #[arg(long, default_value_t = 30)]
+    pub frames: usize,
+    /// Timed runs per frame; the best is kept (filters scheduler noise).
+    #[arg(long, default_value_t = 3)]
+    pub repeats: usize,
+}
+
+/// Median of a sample (NaN when empty).
+pub(crate) fn median(v: &[f64]) -> f64 {
+    let mut s: Vec<f64> = v.iter().copied().filter(|x| x.is_finite()).collect();
+    if s.is_empty() {
+        return f64::NAN;
+    }
+    s.sort_by(f64::total_cmp);
+    let n = s.len();
+    if n % 2 == 1 { s[n / 2] } else { 0.5 * (s[n / 2 - 1] + s[n / 2]) }
+}
+
+/// Best of `repeats` timings of `f`, in ms, and the last result.
+fn best_ms<T>(repeats: usize, mut f: impl FnMut() -> Result<T>) -> Result<(f64, T)> {
+    let mut best = f64::INFINITY;
+    let mut last = None;
+    for _ in 0..repeats.max(1) {
+        let t0 = Instant::now();
+        let r = f()?;
+        best = best.min(t0.elapsed().as_secs_f64() * 1e3);
+        last = Some(r);
+    }
+    // At least one iteration ran (repeats.max(1)).
+    last.map(|r| (best, r)).ok_or_else(|| anyhow!("no timed run"))
+}
+
+/// The machine: core count, CPU model and load average.
+pub(crate) fn machine() -> Value {
+    let nproc = std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1);
+    let cpu = std::fs::read_to_string("/proc/cpuinfo")
+        .ok()
+        .and_then(|t| {
+            t.lines()
+                .find(|l| l.starts_with("model name"))
+                .and_then(|l| l.split_once(':'))
+                .map(|(_, v)| v.trim().to_string())
+        })
+        .unwrap_or_else(|| "unknown".into());
+    let load = std::fs::read_to_string("/proc/loadavg")
+        .ok()
+        .map(|t| t.split_whitespace().take(3).collect::<Vec<_>>().join(" "))
+        .unwrap_or_default();
+    json!({ "nproc": nproc, "cpu_model": cpu, "loadavg": load })
+}
+
+/// The workspace root as compiled in (fallback for relative paths).
+fn workspace_root() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../..")
+}
+
+/// The datasets folder: `COLSLAM_DATA`, else `../shared/datasets` relative
+/// to the current directory, else beside the workspace.
+pub(crate) fn data_dir() -> Result<PathBuf> {
+    if let Some(d) = std::env::var_os("COLSLAM_DATA") {
+        let d = PathBuf::from(d);
+        if d.is_dir() {
+            return Ok(d);
+        }
+        bail!("COLSLAM_DATA={} is not a folder", d.display());
+    }
+    let candidates = [PathBuf::from("../shared/datasets"), workspace_root().join("../shared/datasets")];
+    candidates.iter().find(|d| d.is_dir()).cloned().ok_or_else(|| {
+        anyhow!(
+            "dataset folder not found (looked in {} and {}); set COLSLAM_DATA",
+            candidates[0].display(),
+            candidates[1].display()
+        )
+    })
+}
+
+/// The peer venv's Python interpreter: `COLSLAM_PYTHON`, else
+/// `./.venv/bin/python`, else the workspace's `.venv`.
+pub(crate) fn peer_python() -> Result<PathBuf> {
+    if let Some(p) = std::env::var_os("COLSLAM_PYTHON") {
+        let p = PathBuf::from(p);
+        if p.exists() {
+            return Ok(p);
+        }
+        bail!("COLSLAM_PYTHON={} does not exist (run scripts/setup-peers.sh)", p.display());
+    }
+    let candidates = [PathBuf::from(".venv/bin/python"), workspace_root().join(".venv/bin/python")];
+    candidates.iter().find(|p| p.exists()).cloned().ok_or_else(|| {
+        anyhow!("peer Python venv not found at ./.venv/bin/python: run scripts/setup-peers.sh (or set COLSLAM_PYTHON)")
+    })
+}
+
+/// A peer script under `scripts/peers/` (current directory or workspace).
+pub(crate) fn peer_script(name: &str) -> Result<PathBuf> {
+    let rel = Path::new("scripts/peers").join(name);
+    [rel.clone(), workspace_root().join(&rel)]
+        .into_iter()
+        .find(|p| p.is_file())
+        .ok_or_else(|| anyhow!("peer script {} not found (run from the workspace root)", rel.display()))
+}
+
+/// Runs a peer script on a JSON input file and parses the JSON it prints.
+pub(crate) fn run_peer(script: &str, input: &Value) -> Result<Value> {
+    let py = peer_python()?;
+    let script = peer_script(script)?;
+    let dir = std::env::temp_dir().join(format!("colslam-bench-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).with_context(|| format!("cannot create {}", dir.display()))?;
+    let path = dir.join("input.json");
+    std::fs::write(&path, serde_json::to_vec(input)?).with_context(|| format!("cannot write {}", path.display()))?;
+    let out = Command::new(&py)
+        .arg(&script)
+        .arg(&path)
+        .output()
+        .with_context(|| format!("cannot start {} (run scripts/setup-peers.sh)", py.display()));
+    let _ = std::fs::remove_dir_all(&dir);
+    let out = out?;
+    if !out.status.success() {
+        bail!(
+            "{} {} failed (run scripts/setup-peers.sh if a module is missing):\n{}",
+            py.display(),
+            script.display(),
+            String::from_utf8_lossy(&out.stderr)
+        );
+    }
+    serde_json::from_slice(&out.stdout).with_context(|| format!("{} printed no valid JSON", script.display()))
+}
+
+/// One frame of the dataset.
+struct Frame {
+    path: PathBuf,
+    gray: Image,
+    /// `world_from_cam` from the ground truth.
+    world_from_cam: Rigid3,
+}
+
+/// Reads `rgb.txt`, the first `n` images and their ground-truth poses.
+fn load_frames(dir: &Path, n: usize) -> Result<Vec<Frame>> {
+    let list = dir.join("rgb.txt");
+    let text = std::fs::read_to_string(&list).with_context(|| format!("cannot read {}", list.display()))?;
+    let gt_path = dir.join("groundtruth.txt");
+    let gt = Trajectory::read_tum(&gt_path).with_context(|| format!("cannot read {}", gt_path.display()))?;
+    let mut frames = Vec::new();
+    for (lineno, line) in text.lines().enumerate() {
+        let line = line.trim();
+        if line.is_empty() || line.starts_with('#') {
+            continue;
+        }
+        if frames.len() == n {
+            break;
+        }
+        let mut it = line.split_whitespace();
+        let (Some(stamp), Some(rel)) = (it.next(), it.next()) else {
+            bail!("{}:{}: expected `timestamp path`", list.display(), lineno + 1);
+        };
+        let stamp: f64 =
+            stamp.parse().map_err(|_| anyhow!("{}:{}: bad timestamp `{stamp}`", list.display(), lineno + 1))?;
+        let (gap, pose) = gt
+            .stamps
+            .iter()
+            .zip(&gt.poses)
+            .map(|(s, p)| ((s - stamp).abs(), *p))
+            .min_by(|a, b| a.0.total_cmp(&b.0))
+            .ok_or_else(|| anyhow!("{} is empty", gt_path.display()))?;
+        if gap > MAX_STAMP_GAP {
+            bail!("{}: no ground-truth pose within {MAX_STAMP_GAP} s of image stamp {stamp}", gt_path.display());
+        }
+        let path = dir.join(rel);
+        let gray = Image::read(&path).with_context(|| format!("cannot read {}", path.display()))?.to_gray();
+        frames.push(Frame { path, gray, world_from_cam: pose });
+    }
+    if frames.len() < 2 {
+        bail!("{} lists fewer than 2 frames", list.display());
+    }
+    Ok(frames)
+}
+
+/// Cross product matrix `[t]x`.
+fn skew(t: &Vec3) -> Mat3 {
+    Mat3::new(0.0, -t.z, t.y, t.z, 0.0, -t.x, -t.y, t.x, 0.0)
+}
+
+/// Fundamental matrix between the undistorted (pinhole) images of the two
+/// frames from the ground truth: `F = K^-T [t]x R K^-1` with
+/// `cam2_from_cam1 = (world_from_cam2)^-1 * world_from_cam1`.
+pub(crate) fn gt_fundamental(k: &Mat3, world_from_cam1: &Rigid3, world_from_cam2: &Rigid3) -> Option<Mat3> {
+    let rel = world_from_cam2.inverse() * *world_from_cam1;
+    let e = skew(&rel.translation) * rel.rotation_matrix();
+    let k_inv = k.try_inverse()?;
+    Some(k_inv.transpose() * e * k_inv)
+}
+
+/// Sampson distance (pixels, first-order geometric error) of a match.
+pub(crate) fn sampson_px(f: &Mat3, p1: &Vec2, p2: &Vec2) -> f64 {
+    let x1 = Vec3::new(p1.x, p1.y, 1.0);
+    let x2 = Vec3::new(p2.x, p2.y, 1.0);
+    let fx1 = f * x1;
+    let ftx2 = f.transpose() * x2;
+    let num = x2.dot(&fx1);
+    let den = fx1.x * fx1.x + fx1.y * fx1.y + ftx2.x * ftx2.x + ftx2.y * ftx2.y;
+    if den > 0.0 { (num * num / den).sqrt() } else { f64::INFINITY }
+}
+
+/// Undistorted pinhole pixel of a distorted pixel (OpenCV convention), or
+/// `None` when undistortion fails.
+fn undistort(cam: &Camera, k: &Mat3, p: [f64; 2]) -> Option<Vec2> {
+    let n = cam.cam_from_img(&Vec2::new(p[0], p[1]))?;
+    Some(Vec2::new(k[(0, 0)] * n.x + k[(0, 2)], k[(1, 1)] * n.y + k[(1, 2)]))
+}
+
+/// Pyramid levels tallied separately in the per-octave breakdown.
+const OCTAVES: usize = 8;
+
+/// Per-octave (of the first keypoint) tallies: `[consistent, total]`.
+type OctaveTally = [[usize; 2]; OCTAVES];
+
+/// Counts matches within [`SAMPSON_MAX_PX`] of the ground-truth epipolar
+/// geometry: (consistent, total). Keypoints are `[x, y, octave]`; the
+/// per-octave counts are added to `by_octave`.
+fn score_pair(
+    cam: &Camera,
+    k: &Mat3,
+    f: &Mat3,
+    kp1: &[[f64; 3]],
+    kp2: &[[f64; 3]],
+    m: &[(usize, usize)],
+    by_octave: &mut OctaveTally,
+) -> (usize, usize) {
+    let mut good = 0;
+    for (a, b) in m {
+        let (Some(p1), Some(p2)) = (kp1.get(*a), kp2.get(*b)) else { continue };
+        let ok = match (undistort(cam, k, [p1[0], p1[1]]), undistort(cam, k, [p2[0], p2[1]])) {
+            (Some(u1), Some(u2)) => sampson_px(f, &u1, &u2) < SAMPSON_MAX_PX,
+            _ => false,
+        };
+        good += usize::from(ok);
+        // Octaves are small non-negative integers; clamp into the table.
+        let o = (p1[2].max(0.0) as usize).min(OCTAVES - 1);
+        if let Some(t) = by_octave.get_mut(o) {
+            t[0] += usize::from(ok);
+            t[1] += 1;
+        }
+    }
+    (good, m.len())
+}
+
+/// Per-octave shares as JSON (`null` for empty octaves).
+fn octave_json(t: &OctaveTally) -> Value {
+    json!(t.iter().map(|[g, n]| if *n > 0 { json!({"share": *g as f64 / *n as f64, "matches": n}) } else { Value::Null }).collect::<Vec<_>>())
+}
+
+fn pool(threads: usize) -> Result<rayon::ThreadPool> {
+    rayon::ThreadPoolBuilder::new().num_threads(threads).build().context("cannot build a rayon pool")
+}
+
+fn binary(f: &Features) -> Result<&[[u64; 4]]> {
+    match &f.descriptors {
+        colslam_features::Descriptors::Binary(d) => Ok(d),
+        colslam_features::Descriptors::Float { .. } => bail!("ORB returned float descriptors"),
+    }
+}
+
+fn points(f: &Features) -> Vec<[f64; 3]> {
+    f.keypoints.iter().map(|k| [f64::from(k.x), f64::from(k.y), f64::from(k.octave)]).collect()
+}
+
+fn json_points(v: &Value) -> Vec<[f64; 3]> {
+    v.as_array()
+        .map(|a| {
+            a.iter()
+                .map(|p| {
+                    let c = |i: usize| p.get(i).and_then(Value::as_f64).unwrap_or(f64::NAN);
+                    [c(0), c(1), c(2)]
+                })
+                .collect()
+        })
+        .unwrap_or_default()
+}
+
+fn json_matches(v: &Value) -> Vec<(usize, usize)> {
+    v.as_array()
+        .map(|a| {
+            a.iter()
+                .filter_map(|m| Some((m[0].as_u64()? as usize, m[1].as_u64()? as usize)))
+                .collect()
+        })
+        .unwrap_or_default()
+}
+
+fn num(v: &Value, key: &str) -> Result<f64> {
+    v.get(key).and_then(Value::as_f64).ok_or_else(|| anyhow!("peer output lacks `{key}`"))
 }
 
 /// Runs `bench features`.
-pub fn run(_args: &Args, _quiet: bool) -> Result<()> {
-    bail!("`colslam bench features` is not built yet")
+pub fn run(args: &Args, quiet: bool) -> Result<()> {
+    if args.frames < 2 {
+        bail!("--frames must be at least 2, got {}", args.frames);
+    }
+    let dir = data_dir()?.join(DATASET);
+    if !dir.is_dir() {
+        bail!("dataset {} not found (set COLSLAM_DATA)", dir.display());
+    }
+    let cam_path = dir.join("camera.yaml");
+    let cam = colslam_camera::file::read_camera_file(&cam_path)
+        .with_context(|| format!("cannot read camera {}", cam_path.display()))?;
+    let k = cam.calibration_matrix();
+    let frames = load_frames(&dir, args.frames)?;
+    if !quiet && !args.json {
+        eprintln!("bench features: {} frames of {}", frames.len(), dir.display());
+    }
+
+    // Ours: extraction timings.
+    let one = pool(1)?;
+    let multi = pool(MULTI_THREADS)?;
+    let mut ours = serde_json::Map::new();
+    let mut feats_2000: Vec<Features> = Vec::new();
+    let mut feats_quality: Vec<Features> = Vec::new();
+    let mut mean_kp = serde_json::Map::new();
+    for &n in &TIMING_FEATURES {
+        let orb = OrbExtractor::new(OrbOptions { n_features: n, ..OrbOptions::default() })?;
+        for (label, p) in [("1t", &one), ("2t", &multi)] {
+            let mut times = Vec::with_capacity(frames.len());
+            let mut feats = Vec::with_capacity(frames.len());
+            // Warm-up (page faults, pool start).
+            p.install(|| orb.extract_with_report(&frames[0].gray))?;
+            for f in &frames {
+                let (ms, (fe, _)) = best_ms(args.repeats, || Ok(p.install(|| orb.extract_with_report(&f.gray))?))?;
+                times.push(ms);
+                feats.push(fe);
+            }
+            ours.insert(format!("orb_ms_{n}_{label}"), json!(median(&times)));
+            if label == "1t" {
+                let mean = feats.iter().map(|f| f.len() as f64).sum::<f64>() / feats.len() as f64;
+                mean_kp.insert(n.to_string(), json!(mean));
+                if n == 2000 {
+                    feats_2000 = feats;
+                } else if n == QUALITY_FEATURES {
+                    feats_quality = feats;
+                }
+            }
+        }
+    }
+
+    // Ours: matching 2000 x 2000, BFMatcher-equivalent filter.
+    let bf_like = NnMatcher::new(NnMatcherOptions { cross_check: true, max_ratio: 1.0, max_hamming: 256, ..Default::default() })?;
+    let mut match_times = [Vec::new(), Vec::new()];
+    for w in feats_2000.windows(2) {
+        let (a, b) = (binary(&w[0])?, binary(&w[1])?);
+        for (slot, p) in [(0, &one), (1, &multi)] {
+            let (ms, _) = best_ms(args.repeats, || Ok(p.install(|| bf_like.match_binary(a, b))))?;
+            match_times[slot].push(ms);
+        }
+    }
+
+    // Ours: match quality at QUALITY_FEATURES keypoints.
+    let default_nn = NnMatcher::new(NnMatcherOptions::default())?;
+    let (mut good, mut total, mut good_def, mut total_def) = (0usize, 0usize, 0usize, 0usize);
+    let mut our_octaves = OctaveTally::default();
+    let mut fs = Vec::new();
+    for (w, fr) in feats_quality.windows(2).zip(frames.windows(2)) {
+        let f = gt_fundamental(&k, &fr[0].world_from_cam, &fr[1].world_from_cam)
+            .ok_or_else(|| anyhow!("{}: calibration matrix is singular", cam_path.display()))?;
+        let (a, b) = (binary(&w[0])?, binary(&w[1])?);
+        let (p1, p2) = (points(&w[0]), points(&w[1]));
+        let m: Vec<(usize, usize)> = multi
+            .install(|| bf_like.match_binary(a, b))
+            .iter()
+            .map(|m| (m.query as usize, m.train as usize))
+            .collect();
+        let (g, t) = score_pair(&cam, &k, &f, &p1, &p2, &m, &mut our_octaves);
+        good += g;
+        total += t;
+        let md: Vec<(usize, usize)> =
+            default_nn.match_binary(a, b).iter().map(|m| (m.query as usize, m.train as usize)).collect();
+        let (g, t) = score_pair(&cam, &k, &f, &p1, &p2, &md, &mut OctaveTally::default());
+        good_def += g;
+        total_def += t;
+        fs.push(f);
+    }
+    let pairs = fs.len().max(1) as f64;
+
+    // OpenCV, same frames; matching timed on our own 2000-keypoint
+    // descriptors so that both libraries match identical sets.
+    let desc_dir = std::env::temp_dir().join(format!("colslam-bench-desc-{}", std::process::id()));
+    std::fs::create_dir_all(&desc_dir).with_context(|| format!("cannot create {}", desc_dir.display()))?;
+    let mut desc_paths = Vec::new();
+    for (i, f) in feats_2000.iter().enumerate() {
+        // Little-endian words give OpenCV's byte order (see Descriptors).
+        let bytes: Vec<u8> = binary(f)?.iter().flat_map(|d| d.iter().flat_map(|w| w.to_le_bytes())).collect();
+        let path = desc_dir.join(format!("desc_{i:04}.bin"));
+        std::fs::write(&path, bytes).with_context(|| format!("cannot write {}", path.display()))?;
+        desc_paths.push(path.display().to_string());
+    }
+    let input = json!({
+        "images": frames.iter().map(|f| f.path.display().to_string()).collect::<Vec<_>>(),
+        "timing_features": TIMING_FEATURES,
+        "fast_thresholds": [OPENCV_FAST_THRESHOLD_MATCHED, OPENCV_FAST_THRESHOLD_DEFAULT],
+        "quality_features": QUALITY_FEATURES,
+        "repeats": args.repeats,
+        "match_threads": MULTI_THREADS,
+        "descriptors": desc_paths,
+    });
+    let cv = run_peer("bench_features.py", &input);
+    let _ = std::fs::remove_dir_all(&desc_dir);
+    let cv = cv?;
+    let cv_ms = |th: u8, n: usize| {
+        cv["extract_ms"][th.to_string()][n.to_string()]
+            .as_f64()
+            .ok_or_else(|| anyhow!("peer output lacks extract_ms.{th}.{n}"))
+    };
+    let cv_ms_1000 = cv_ms(OPENCV_FAST_THRESHOLD_MATCHED, 1000)?;
+    let cv_ms_2000 = cv_ms(OPENCV_FAST_THRESHOLD_MATCHED, 2000)?;
+    let cv_def_1000 = cv_ms(OPENCV_FAST_THRESHOLD_DEFAULT, 1000)?;
+    let cv_def_2000 = cv_ms(OPENCV_FAST_THRESHOLD_DEFAULT, 2000)?;
+    let cv_match = num(&cv, "match_ms")?;
+    let our_counts: Vec<usize> = feats_2000
+        .windows(2)
+        .map(|w| Ok(bf_like.match_binary(binary(&w[0])?, binary(&w[1])?).len()))
+        .collect::<Result<_>>()?;
+    let cv_counts: Vec<u64> =
+        cv["match_counts"].as_array().map(|a| a.iter().filter_map(Value::as_u64).collect()).unwrap_or_default();
+    let same_counts = our_counts.len() == cv_counts.len()
+        && our_counts.iter().zip(&cv_counts).all(|(a, b)| *a as u64 == *b);
+    let cv_quality = |th: u8, by_octave: &mut OctaveTally| -> Result<(usize, usize)> {
+        let pairs = cv["pairs"][th.to_string()].as_array().ok_or_else(|| anyhow!("peer output lacks pairs.{th}"))?;
+        if pairs.len() != fs.len() {
+            bail!("peer returned {} pairs, expected {}", pairs.len(), fs.len());
+        }
+        let (mut g, mut t) = (0usize, 0usize);
+        for (p, f) in pairs.iter().zip(&fs) {
+            let (a, b) =
+                score_pair(&cam, &k, f, &json_points(&p["kp1"]), &json_points(&p["kp2"]), &json_matches(&p["matches"]), by_octave);
+            g += a;
+            t += b;
+        }
+        Ok((g, t))
+    };
+    let mut cv_octaves = OctaveTally::default();
+    let (cv_good, cv_total) = cv_quality(OPENCV_FAST_THRESHOLD_MATCHED, &mut cv_octaves)?;
+    let (cv_def_good, cv_def_total) = cv_quality(OPENCV_FAST_THRESHOLD_DEFAULT, &mut OctaveTally::default())?;
+
+    let ratio = |g: usize, t: usize| if t > 0 { g as f64 / t as f64 } else { f64::NAN };
+    let o = |key: &str| ours.get(key).and_then(Value::as_f64).unwrap_or(f64::NAN);
+    let result = json!({
+        "dataset": DATASET,
+        "frames": frames.len(),
+        "pairs": fs.len(),
+        "repeats": args.repeats,
+        "orb_ms_1000": o("orb_ms_1000_1t"),
+        "orb_ms_2000": o("orb_ms_2000_1t"),
+        "orb_ms_1000_2threads": o("orb_ms_1000_2t"),
+        "orb_ms_2000_2threads": o("orb_ms_2000_2t"),
+        "opencv_orb_ms_1000": cv_ms_1000,
+        "opencv_orb_ms_2000": cv_ms_2000,
+        "orb_keypoints_mean": mean_kp,
+        "opencv_orb_keypoints_mean": cv["num_keypoints"][OPENCV_FAST_THRESHOLD_MATCHED.to_string()],
+        "opencv_fast_threshold": OPENCV_FAST_THRESHOLD_MATCHED,
+        "opencv_default_orb_ms_1000": cv_def_1000,
+        "opencv_default_orb_ms_2000": cv_def_2000,
+        "opencv_default_orb_keypoints_mean": cv["num_keypoints"][OPENCV_FAST_THRESHOLD_DEFAULT.to_string()],
+        "opencv_default_gt_consistent_matches": cv_def_good as f64 / pairs,
+        "opencv_default_gt_consistent_ratio": ratio(cv_def_good, cv_def_total),
+        "match_counts_identical": same_counts,
+        "match_ms_2000": median(&match_times[1]),
+        "match_ms_2000_1thread": median(&match_times[0]),
+        "opencv_match_ms_2000": cv_match,
+        "quality_features": QUALITY_FEATURES,
+        "sampson_max_px": SAMPSON_MAX_PX,
+        "gt_consistent_matches": good as f64 / pairs,
+        "opencv_gt_consistent_matches": cv_good as f64 / pairs,
+        "gt_consistent_ratio": ratio(good, total),
+        "opencv_gt_consistent_ratio": ratio(cv_good, cv_total),
+        "gt_consistent_by_octave": octave_json(&our_octaves),
+        "opencv_gt_consistent_by_octave": octave_json(&cv_octaves),
+        "matches_per_pair": total as f64 / pairs,
+        "opencv_matches_per_pair": cv_total as f64 / pairs,
+        "default_matcher_gt_consistent_matches": good_def as f64 / pairs,
+        "default_matcher_gt_consistent_ratio": ratio(good_def, total_def),
+        "xfeat_ms": Value::Null,
+        "opencv_version": cv["opencv_version"],
+        "machine": machine(),
+    });
+    if args.json {
+        println!("{}", serde_json::to_string_pretty(&result)?);
+        return Ok(());
+    }
+    let r = |a: f64, b: f64| if b > 0.0 { format!("{:.2}", a / b) } else { "-".into() };
+    let m = machine();
+    println!("bench features: {} ({} frames, {} pairs), {} cores, {}, load {}", DATASET, frames.len(), fs.len(), m["nproc"], m["cpu_model"].as_str().unwrap_or("?"), m["loadavg"].as_str().unwrap_or("?"));
+    println!("{:<38} {:>10} {:>10} {:>10}", "measure", "colslam", "OpenCV", "ours/peer");
+    let rows = [
+        ("ORB 1000 kp, ms/frame (1 thread)", o("orb_ms_1000_1t"), cv_ms_1000),
+        ("ORB 2000 kp, ms/frame (1 thread)", o("orb_ms_2000_1t"), cv_ms_2000),
+        ("ORB 1000 kp, ms/frame (ours 2 threads)", o("orb_ms_1000_2t"), cv_ms_1000),
+        ("ORB 2000 kp, ms/frame (ours 2 threads)", o("orb_ms_2000_2t"), cv_ms_2000),
+        ("match 2000x2000, ms (2 threads)", median(&match_times[1]), cv_match),
+        ("ORB 1000 kp, ms/frame (OpenCV fast 20)", o("orb_ms_1000_1t"), cv_def_1000),
+        ("ORB 2000 kp, ms/frame (OpenCV fast 20)", o("orb_ms_2000_1t"), cv_def_2000),
+        ("GT-consistent matches per pair", good as f64 / pairs, cv_good as f64 / pairs),
+        ("GT-consistent share of matches", ratio(good, total), ratio(cv_good, cv_total)),
+    ];
+    for (name, a, b) in rows {
+        println!("{name:<38} {a:>10.3} {b:>10.3} {:>10}", r(a, b));
+    }
+    println!("(identical match counts on identical descriptors: {same_counts}; OpenCV default FAST threshold 20: {:.1} consistent matches per pair, share {:.3})", cv_def_good as f64 / pairs, ratio(cv_def_good, cv_def_total));
+    println!("(ours with the default matcher, ratio 0.9 and <= 64 bits: {:.1} consistent matches per pair, share {:.3})", good_def as f64 / pairs, ratio(good_def, total_def));
+    Ok(())
 }

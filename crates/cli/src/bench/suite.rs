@@ -1,16 +1,565 @@
-//! `colslam bench [--suite quick|full]` (being built).
+//! `colslam bench [--suite quick|full]`: the sequence suite. Runs colslam
+//! (and, with `--peers`, pycolmap and ORB-SLAM3 through Python) on every
+//! sequence of the suite, each run a measured subprocess (wall, CPU, peak
+//! RSS, timeout), evaluates the trajectories against ground truth with
+//! colslam_eval (equal to `evo_ape tum -as`), plots them, and writes
+//! `report.md` and `report.json`. A failed, crashed or timed-out run is a
+//! failure row; the suite goes on.
+//!
+//! The paper's Table 1 (accuracy, registration), Table 2 (time per stage)
+//! and, with `--sweep`, Table 3 (one parameter at a time) on our data.
 
-use anyhow::{bail, Result};
+mod plot;
+mod report;
+mod runner;
+mod sequences;
+
+use anyhow::{bail, Context, Result};
+use report::{RunInfo, RunRow, Status, SuiteReport, MEASURED_EARLIER, PAPER};
+use runner::{last_lines, run_measured};
+use sequences::{CameraSpec, Sequence};
+use serde_json::Value;
+use std::path::{Path, PathBuf};
+use std::process::Command;
+use std::time::{Duration, Instant};
+
+/// Default output folder.
+pub const DEFAULT_OUT_DIR: &str = "bench-out";
+/// Default per-run timeout, seconds.
+pub const DEFAULT_TIMEOUT_S: u64 = 1200;
+/// Default runs per sequence of the quick suite.
+pub const QUICK_RUNS: usize = 1;
+/// Default runs per sequence of the full suite.
+pub const FULL_RUNS: usize = 3;
+/// Parameters `--sweep` may vary (flags of `colslam run`).
+pub const SWEEP_KEYS: [&str; 5] = ["flow-threshold", "skip", "init-frames", "features", "matcher"];
+/// Name of colslam in the report.
+pub const COLSLAM: &str = "colslam";
+/// The peer scripts, relative to the workspace root.
+const PYCOLMAP_SCRIPT: &str = "scripts/peers/run_pycolmap.py";
+const ORBSLAM3_SCRIPT: &str = "scripts/peers/run_orbslam3.py";
+/// Exit status by which a peer script says it could not run.
+const PEER_NOT_RUN_EXIT: i32 = 3;
+/// pycolmap mappers run by `--peers`.
+const PYCOLMAP_MAPPERS: [&str; 2] = ["incremental", "global"];
+/// Milliseconds per second.
+const MS_PER_S: f64 = 1e3;
 
 /// Arguments of the sequence suite.
 #[derive(Debug, clap::Args)]
 pub struct SuiteArgs {
-    /// Which suite.
-    #[arg(long, default_value = "quick")]
+    /// Which suite: quick (synthetic 60 and 150 frames, tum_fr1_rpy_sub,
+    /// strecha_fountain_P11, the KITTI clip) or full (every sequence with
+    /// ground truth, synthetic 60/150/300, the KITTI clip).
+    #[arg(long, default_value = "quick", value_parser = ["quick", "full"])]
     pub suite: String,
+    /// Output folder of report.md, report.json, plots and runs.
+    #[arg(long, default_value = DEFAULT_OUT_DIR)]
+    pub out: PathBuf,
+    /// Runs per sequence (median reported). Default: 1 quick, 3 full.
+    #[arg(long)]
+    pub runs: Option<usize>,
+    /// Also run the Python peers (pycolmap incremental and global, ORB-SLAM3
+    /// if installed) on the sequences with ground truth.
+    #[arg(long)]
+    pub peers: bool,
+    /// One-parameter sweep (repeatable), e.g. `--sweep skip=1,2,3`; keys:
+    /// flow-threshold, skip, init-frames, features, matcher. Runs on
+    /// tum_fr1_rpy_sub and synthetic-150 (else on the selected sequences).
+    #[arg(long, value_name = "KEY=V1,V2,...")]
+    pub sweep: Vec<String>,
+    /// Datasets folder (default: $COLSLAM_DATA, else ./datasets or ../shared/datasets).
+    #[arg(long)]
+    pub data: Option<PathBuf>,
+    /// Per-run timeout, seconds.
+    #[arg(long, default_value_t = DEFAULT_TIMEOUT_S)]
+    pub timeout: u64,
+    /// Worker threads of each run (default: all cores).
+    #[arg(long)]
+    pub threads: Option<usize>,
+    /// Only these sequences (comma separated names; `synthetic-<N>` adds a
+    /// synthetic sequence of N frames).
+    #[arg(long, value_delimiter = ',')]
+    pub only: Vec<String>,
+    /// An extra sequence (image folder or video; ground truth from its
+    /// groundtruth.txt). Repeatable.
+    #[arg(long = "sequence", value_name = "PATH")]
+    pub sequences: Vec<PathBuf>,
+    /// Image size of generated synthetic sequences, WxH (default 640x480).
+    #[arg(long, hide = true)]
+    pub synthetic_size: Option<String>,
+}
+
+/// A parsed `--sweep`.
+#[derive(Debug, Clone, PartialEq)]
+struct Sweep {
+    key: String,
+    values: Vec<String>,
+}
+
+fn parse_sweep(s: &str) -> Result<Sweep> {
+    let (key, values) = s.split_once('=').with_context(|| format!("--sweep {s:?} is not KEY=V1,V2,..."))?;
+    let key = key.trim();
+    if !SWEEP_KEYS.contains(&key) {
+        bail!("--sweep key {key:?} is not one of {}", SWEEP_KEYS.join(", "));
+    }
+    let values: Vec<String> = values.split(',').map(str::trim).filter(|v| !v.is_empty()).map(String::from).collect();
+    if values.is_empty() {
+        bail!("--sweep {s:?} lists no values");
+    }
+    Ok(Sweep { key: key.to_string(), values })
+}
+
+/// Everything a single run needs besides the sequence.
+struct Ctx {
+    exe: PathBuf,
+    out: PathBuf,
+    timeout: Duration,
+    threads: Option<usize>,
+    quiet: bool,
+}
+
+/// `name` with every character other than ASCII letters, digits, '.', '_'
+/// and '-' replaced by '-'.
+fn slug(name: &str) -> String {
+    name.chars().map(|c| if c.is_ascii_alphanumeric() || "._-".contains(c) { c } else { '-' }).collect()
+}
+
+fn rel_string(p: &Path) -> String {
+    p.to_string_lossy().replace('\\', "/")
+}
+
+fn json_f64(v: &Value, key: &str) -> Option<f64> {
+    v.get(key).and_then(Value::as_f64)
+}
+
+fn json_usize(v: &Value, key: &str) -> Option<usize> {
+    v.get(key).and_then(Value::as_u64).and_then(|x| usize::try_from(x).ok())
+}
+
+fn fresh_dir(dir: &Path) -> Result<()> {
+    if dir.exists() {
+        std::fs::remove_dir_all(dir).with_context(|| format!("clearing {}", dir.display()))?;
+    }
+    std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))
+}
+
+/// Evaluates `est` against `gt` into `row` (all frames or keyframes), with
+/// plots for the all-frames case.
+fn evaluate_into(row: &mut RunRow, ctx: &Ctx, gt: &Path, dir: &Path, keyframes_only: bool) {
+    let est = dir.join(if keyframes_only { "keyframes.tum" } else { "trajectory.tum" });
+    if !est.is_file() {
+        return;
+    }
+    let rep = match colslam_eval::evaluate_files(gt, &est, &colslam_eval::EvalOptions::default()) {
+        Ok(r) => r,
+        Err(e) => {
+            if !keyframes_only {
+                row.reason.get_or_insert_with(|| format!("evaluation: {e}"));
+            }
+            return;
+        }
+    };
+    if keyframes_only {
+        row.ate_kf_rmse_m = Some(rep.ate_rmse);
+        return;
+    }
+    row.ate_rmse_m = Some(rep.ate_rmse);
+    row.ate_matched = Some(rep.matched);
+    let top = dir.join("ate.png");
+    let side = dir.join("side.png");
+    let title = format!("{} / {}: ATE RMSE {:.2} cm, {} poses", row.sequence, row.system, 100.0 * rep.ate_rmse, rep.matched);
+    for (path, result) in [
+        (&top, colslam_eval::plot::plot_evaluation(&rep, &top).map_err(anyhow::Error::from)),
+        (&side, plot::plot_side_view(&rep, &title, &side)),
+    ] {
+        match result {
+            Ok(()) => {
+                if let Ok(rel) = path.strip_prefix(&ctx.out) {
+                    row.plots.push(rel_string(rel));
+                }
+            }
+            Err(e) => tracing::warn!("plot {}: {e:#}", path.display()),
+        }
+    }
+}
+
+/// Runs colslam once on `seq` as a measured subprocess.
+fn run_colslam(ctx: &Ctx, seq: &Sequence, setting: &str, extra: &[String], run: usize) -> RunRow {
+    let rel = PathBuf::from("runs").join(slug(&seq.name)).join(slug(&if setting.is_empty() { COLSLAM.to_string() } else { format!("{COLSLAM}-{setting}") })).join(format!("run{run}"));
+    let dir = ctx.out.join(&rel);
+    let mut row = RunRow::new(&seq.name, COLSLAM, setting, run, rel_string(&rel));
+    if let Err(e) = fresh_dir(&dir) {
+        row.reason = Some(format!("{e:#}"));
+        return row;
+    }
+    let mut cmd = Command::new(&ctx.exe);
+    cmd.arg("-q").arg("run").arg(&seq.input).arg("-o").arg(&dir);
+    if let CameraSpec::Preset(p) = &seq.camera {
+        cmd.args(["--preset", p]);
+    }
+    if let Some(t) = ctx.threads {
+        cmd.args(["--threads", &t.to_string()]);
+    }
+    cmd.args(extra);
+    let log = dir.join("log.txt");
+    let m = match run_measured(&mut cmd, &log, ctx.timeout) {
+        Ok(m) => m,
+        Err(e) => {
+            row.reason = Some(format!("{e:#}"));
+            return row;
+        }
+    };
+    row.wall_s = Some(m.wall_s);
+    row.cpu_s = Some(m.cpu_s);
+    row.peak_rss_mib = Some(m.peak_rss_mib);
+    if let Some(reason) = m.failure_reason(&log, ctx.timeout) {
+        row.reason = Some(reason);
+        return row;
+    }
+    let report_path = dir.join("report.json");
+    let report: Value = match std::fs::read(&report_path)
+        .map_err(anyhow::Error::from)
+        .and_then(|b| serde_json::from_slice(&b).map_err(anyhow::Error::from))
+    {
+        Ok(v) => v,
+        Err(e) => {
+            row.reason = Some(format!("reading {}: {e}", report_path.display()));
+            return row;
+        }
+    };
+    row.frames = json_usize(&report, "frames");
+    row.localized = json_usize(&report, "localized");
+    row.keyframes = json_usize(&report, "keyframes");
+    row.points = json_usize(&report, "points");
+    row.points_per_image = json_f64(&report, "points_per_image");
+    row.mean_track_length = json_f64(&report, "mean_track_length");
+    row.mean_reprojection_error_px = json_f64(&report, "mean_reprojection_error");
+    if let Some(t) = report.get("timings_s") {
+        row.init_s = json_f64(t, "initialization");
+        if let (Some(n), Some(reg)) = (row.frames.filter(|&n| n > 0), json_f64(t, "registration")) {
+            let loc = json_f64(t, "localization").unwrap_or(0.0);
+            row.registration_ms_per_frame = Some(MS_PER_S * (reg + loc) / n as f64);
+        }
+        row.timings_s = Some(t.clone());
+    }
+    if let Some(n) = row.frames.filter(|&n| n > 0) {
+        row.ms_per_frame = Some(MS_PER_S * m.wall_s / n as f64);
+    }
+    row.classify();
+    if let Some(gt) = &seq.gt {
+        evaluate_into(&mut row, ctx, gt, &dir, false);
+        evaluate_into(&mut row, ctx, gt, &dir, true);
+    }
+    row
+}
+
+/// Where the peer scripts and interpreter are.
+struct PeerEnv {
+    python: PathBuf,
+    scripts_root: Option<PathBuf>,
+}
+
+/// The first ancestor of the current directory or of the executable that holds `rel`.
+fn find_upwards(rel: &str) -> Option<PathBuf> {
+    let mut starts = Vec::new();
+    if let Ok(d) = std::env::current_dir() {
+        starts.push(d);
+    }
+    if let Ok(e) = std::env::current_exe() {
+        starts.push(e);
+    }
+    starts.iter().flat_map(|s| s.ancestors()).find(|a| a.join(rel).exists()).map(Path::to_path_buf)
+}
+
+impl PeerEnv {
+    fn find() -> Self {
+        let python = std::env::var_os("COLSLAM_PYTHON")
+            .map(PathBuf::from)
+            .or_else(|| find_upwards(".venv/bin/python").map(|r| r.join(".venv/bin/python")))
+            .unwrap_or_else(|| PathBuf::from("python3"));
+        PeerEnv { python, scripts_root: find_upwards(PYCOLMAP_SCRIPT) }
+    }
+}
+
+/// Runs one peer script on `seq` as a measured subprocess.
+fn run_peer(ctx: &Ctx, env: &PeerEnv, seq: &Sequence, system: &str, script: &str, args: &[&str]) -> RunRow {
+    let rel = PathBuf::from("runs").join(slug(&seq.name)).join(slug(system)).join("run1");
+    let dir = ctx.out.join(&rel);
+    let mut row = RunRow::new(&seq.name, system, "", 1, rel_string(&rel));
+    let Some(root) = &env.scripts_root else {
+        row.status = Status::NotRun;
+        row.reason = Some(format!("{script} not found above the current directory or the executable"));
+        return row;
+    };
+    if let Err(e) = fresh_dir(&dir) {
+        row.reason = Some(format!("{e:#}"));
+        return row;
+    }
+    let mut cmd = Command::new(&env.python);
+    cmd.arg(root.join(script)).arg(&seq.input).arg(&dir).args(args);
+    let log = dir.join("log.txt");
+    let m = match run_measured(&mut cmd, &log, ctx.timeout) {
+        Ok(m) => m,
+        Err(e) => {
+            row.status = Status::NotRun;
+            row.reason = Some(format!("{e:#}"));
+            return row;
+        }
+    };
+    if m.exit == runner::Exit::Code(PEER_NOT_RUN_EXIT) {
+        row.status = Status::NotRun;
+        row.reason = Some(last_lines(&log, 1));
+        return row;
+    }
+    row.wall_s = Some(m.wall_s);
+    row.cpu_s = Some(m.cpu_s);
+    row.peak_rss_mib = Some(m.peak_rss_mib);
+    if let Some(reason) = m.failure_reason(&log, ctx.timeout) {
+        row.reason = Some(reason);
+        return row;
+    }
+    let peer: Value = match std::fs::read(dir.join("peer.json"))
+        .map_err(anyhow::Error::from)
+        .and_then(|b| serde_json::from_slice(&b).map_err(anyhow::Error::from))
+    {
+        Ok(v) => v,
+        Err(e) => {
+            row.reason = Some(format!("reading peer.json: {e}"));
+            return row;
+        }
+    };
+    row.frames = json_usize(&peer, "frames");
+    row.localized = json_usize(&peer, "localized");
+    row.keyframes = json_usize(&peer, "keyframes");
+    row.points = json_usize(&peer, "points");
+    row.points_per_image = json_f64(&peer, "points_per_image");
+    row.mean_track_length = json_f64(&peer, "mean_track_length");
+    row.mean_reprojection_error_px = json_f64(&peer, "mean_reprojection_error");
+    row.timings_s = peer.get("timings_s").cloned();
+    if let Some(s) = peer.get("system").and_then(Value::as_str) {
+        tracing::info!("peer {s} on {}", seq.name);
+    }
+    if let Some(n) = row.frames.filter(|&n| n > 0) {
+        row.ms_per_frame = Some(MS_PER_S * m.wall_s / n as f64);
+    }
+    row.classify();
+    if let Some(gt) = &seq.gt {
+        evaluate_into(&mut row, ctx, gt, &dir, false);
+    }
+    row
+}
+
+/// Prepares a sequence: generates a synthetic one; `Err` holds the reason it
+/// cannot run.
+fn prepare(seq: &Sequence, quiet: bool) -> std::result::Result<(), (Status, String)> {
+    if let Some(opts) = &seq.synth {
+        if !quiet {
+            eprintln!("generating {} in {}", seq.name, seq.input.display());
+        }
+        colslam_synth::generate(opts, &seq.input, None)
+            .map(|_| ())
+            .map_err(|e| (Status::Failed, format!("generating the synthetic sequence: {e}")))
+    } else if !seq.user && !seq.input.exists() {
+        Err((Status::NotRun, format!("not found: {}", seq.input.display())))
+    } else {
+        Ok(())
+    }
+}
+
+fn load_average() -> String {
+    std::fs::read_to_string("/proc/loadavg")
+        .map(|s| s.split_whitespace().take(3).collect::<Vec<_>>().join(" "))
+        .unwrap_or_else(|_| "unknown".into())
+}
+
+fn progress(quiet: bool, row: &RunRow) {
+    if quiet {
+        return;
+    }
+    let ate = row.ate_rmse_m.map_or_else(|| "-".into(), |a| format!("{:.2} cm", 100.0 * a));
+    let loc = row.localized_pct.map_or_else(|| "-".into(), |p| format!("{p:.1} %"));
+    let wall = row.wall_s.map_or_else(|| "-".into(), |w| format!("{w:.1} s"));
+    let setting = if row.setting.is_empty() { String::new() } else { format!(" ({})", row.setting) };
+    eprintln!(
+        "{} / {}{} run {}: {:?}, localised {loc}, ATE {ate}, wall {wall}{}",
+        row.sequence,
+        row.system,
+        setting,
+        row.run,
+        row.status,
+        row.reason.as_ref().map_or_else(String::new, |r| format!(" [{r}]"))
+    );
 }
 
 /// Runs the suite.
-pub fn run(_args: &SuiteArgs, _quiet: bool) -> Result<()> {
-    bail!("`colslam bench --suite` is not built yet")
+pub fn run(args: &SuiteArgs, quiet: bool) -> Result<()> {
+    let started = Instant::now();
+    let started_unix_s =
+        std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map(|d| d.as_secs()).unwrap_or(0);
+    let runs = args.runs.unwrap_or(if args.suite == "full" { FULL_RUNS } else { QUICK_RUNS });
+    if runs == 0 {
+        bail!("--runs must be at least 1");
+    }
+    if args.timeout == 0 {
+        bail!("--timeout must be at least 1 second");
+    }
+    let sweeps: Vec<Sweep> = args.sweep.iter().map(|s| parse_sweep(s)).collect::<Result<_>>()?;
+    let size = args.synthetic_size.as_deref().map(sequences::parse_size).transpose()?;
+    std::fs::create_dir_all(&args.out).with_context(|| format!("creating {}", args.out.display()))?;
+    let out = args.out.canonicalize().with_context(|| format!("resolving {}", args.out.display()))?;
+    let gen_dir = out.join("data");
+    let data = sequences::data_dir(args.data.as_deref());
+    let all = sequences::suite_sequences(&args.suite, &data, size, &gen_dir)?;
+    let mut seqs = sequences::restrict(all, &args.only, size, &gen_dir)?;
+    seqs.extend(args.sequences.iter().map(|p| Sequence::user(p)));
+    let ctx = Ctx {
+        exe: std::env::current_exe().context("locating the colslam executable")?,
+        out: out.clone(),
+        timeout: Duration::from_secs(args.timeout),
+        threads: args.threads,
+        quiet,
+    };
+    let load_start = load_average();
+    let mut rows: Vec<RunRow> = Vec::new();
+    let mut runnable: Vec<bool> = Vec::with_capacity(seqs.len());
+    let push = |rows: &mut Vec<RunRow>, row: RunRow| {
+        progress(ctx.quiet, &row);
+        rows.push(row);
+    };
+
+    // Default settings, every sequence.
+    for seq in &seqs {
+        match prepare(seq, quiet) {
+            Ok(()) => {
+                runnable.push(true);
+                for k in 1..=runs {
+                    let row = run_colslam(&ctx, seq, "", &[], k);
+                    push(&mut rows, row);
+                }
+            }
+            Err((status, reason)) => {
+                runnable.push(false);
+                let mut row = RunRow::new(&seq.name, COLSLAM, "", 1, String::new());
+                row.status = status;
+                row.reason = Some(reason);
+                push(&mut rows, row);
+            }
+        }
+    }
+
+    // Peers, once per sequence with ground truth in TUM layout.
+    let mut peer_notes = Vec::new();
+    if args.peers {
+        let env = PeerEnv::find();
+        let threads = args.threads.map(|t| t.to_string());
+        for (seq, ok) in seqs.iter().zip(&runnable) {
+            if !*ok || seq.gt.is_none() || !seq.has_tum_layout() {
+                continue;
+            }
+            for mapper in PYCOLMAP_MAPPERS {
+                let system = format!("pycolmap {mapper}");
+                let mut a = vec!["--mapper", mapper];
+                if let Some(t) = &threads {
+                    a.extend(["--threads", t.as_str()]);
+                }
+                let row = run_peer(&ctx, &env, seq, &system, PYCOLMAP_SCRIPT, &a);
+                push(&mut rows, row);
+            }
+            let row = run_peer(&ctx, &env, seq, "ORB-SLAM3 (pyorbslam3)", ORBSLAM3_SCRIPT, &[]);
+            push(&mut rows, row);
+        }
+        let mut systems: Vec<String> = Vec::new();
+        for r in rows.iter().filter(|r| r.system != COLSLAM) {
+            if !systems.contains(&r.system) {
+                systems.push(r.system.clone());
+            }
+        }
+        for s in systems {
+            let of: Vec<&RunRow> = rows.iter().filter(|r| r.system == s).collect();
+            let ran = of.iter().filter(|r| r.status != Status::NotRun).count();
+            let note = if ran > 0 {
+                format!("{s}: ran on {ran} sequence(s)")
+            } else {
+                format!("{s}: {}", of.first().and_then(|r| r.reason.clone()).unwrap_or_else(|| "not run".into()))
+            };
+            peer_notes.push(note);
+        }
+        if peer_notes.is_empty() {
+            peer_notes.push("--peers given, but no selected sequence has ground truth in TUM layout".into());
+        }
+    }
+
+    // One-parameter sweeps (the paper's Table 3).
+    if !sweeps.is_empty() {
+        let default_synth = format!("{}{}", sequences::SYNTHETIC_PREFIX, colslam_synth::SynthOptions::default().frames);
+        let preferred = [sequences::TUM_SEQUENCE, default_synth.as_str()];
+        let mut targets: Vec<&Sequence> =
+            seqs.iter().zip(&runnable).filter(|(s, ok)| **ok && preferred.contains(&s.name.as_str())).map(|(s, _)| s).collect();
+        if targets.is_empty() {
+            targets = seqs.iter().zip(&runnable).filter(|(_, ok)| **ok).map(|(s, _)| s).collect();
+        }
+        for sw in &sweeps {
+            for v in &sw.values {
+                let setting = format!("{}={v}", sw.key);
+                let extra = vec![format!("--{}", sw.key), v.clone()];
+                for seq in &targets {
+                    for k in 1..=runs {
+                        let row = run_colslam(&ctx, seq, &setting, &extra, k);
+                        push(&mut rows, row);
+                    }
+                }
+            }
+        }
+    }
+
+    let summary = report::summarise(&rows);
+    let report = SuiteReport {
+        info: RunInfo {
+            command: std::env::args().collect::<Vec<_>>().join(" "),
+            suite: args.suite.clone(),
+            runs,
+            started_unix_s,
+            total_wall_s: started.elapsed().as_secs_f64(),
+            cpus: std::thread::available_parallelism().map_or(1, |n| n.get()),
+            load_start,
+            load_end: load_average(),
+            peers: peer_notes,
+        },
+        summary,
+        runs: rows,
+        measured_earlier: MEASURED_EARLIER.to_vec(),
+        paper: PAPER.to_vec(),
+    };
+    let json = serde_json::to_vec_pretty(&report).context("serialising the report")?;
+    colslam_image::write_atomic(&out.join("report.json"), &json).context("writing report.json")?;
+    let md = report::markdown(&report);
+    colslam_image::write_atomic(&out.join("report.md"), md.as_bytes()).context("writing report.md")?;
+    if !quiet {
+        println!("{}", report::summary_table(&report.summary));
+        println!("report: {}", out.join("report.md").display());
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn sweeps_parse() {
+        assert_eq!(
+            parse_sweep("skip=1, 2,3").unwrap(),
+            Sweep { key: "skip".into(), values: vec!["1".into(), "2".into(), "3".into()] }
+        );
+        assert!(parse_sweep("bogus=1").is_err());
+        assert!(parse_sweep("skip=").is_err());
+        assert!(parse_sweep("skip").is_err());
+    }
+
+    #[test]
+    fn slugs() {
+        assert_eq!(slug("pycolmap incremental"), "pycolmap-incremental");
+        assert_eq!(slug("colslam-skip=2"), "colslam-skip-2");
+    }
 }

@@ -1,0 +1,152 @@
+//! `colslam view` (the browser viewer, paper section 3.7) and
+//! `colslam run ... --view` (the same page following a command-line run).
+//!
+//! Both print the page's URL as the first line on stdout (flushed; with
+//! `--port 0` it names the port picked), then serve until Ctrl-C. With
+//! `run --view --view-exit` the process exits when the run ends instead (for
+//! scripts and tests).
+
+use crate::cmd_run::{PipelineArgs, RunArgs};
+use crate::viewer_bridge::{run_live, RunShared, ViewController};
+use anyhow::{Context, Result};
+use clap::Parser;
+use colslam_viewer::{Viewer, ViewerOptions, DEFAULT_PORT};
+use std::io::Write;
+use std::net::IpAddr;
+use std::path::PathBuf;
+use std::sync::Arc;
+use std::time::Duration;
+
+/// With `--view-exit`, how long the server stays up after the run so that
+/// connected pages receive the final state.
+const VIEW_EXIT_LINGER: Duration = Duration::from_millis(500);
+
+/// Where the viewer listens.
+#[derive(Debug, Clone, clap::Args)]
+pub struct ServerArgs {
+    /// Port of the viewer (0: any free one; the printed URL names it).
+    #[arg(long, default_value_t = DEFAULT_PORT)]
+    pub port: u16,
+    /// Address to listen on. The default serves this machine only; the
+    /// viewer has no authentication, so bind elsewhere only on a trusted network.
+    #[arg(long, default_value = "127.0.0.1")]
+    pub bind: IpAddr,
+}
+
+impl ServerArgs {
+    fn options(&self) -> ViewerOptions {
+        ViewerOptions { bind: self.bind, port: self.port }
+    }
+}
+
+/// Arguments of `view`.
+#[derive(Debug, clap::Args)]
+pub struct ViewArgs {
+    /// COLMAP model folder to show (binary or text). Without it the page
+    /// starts empty: load a model or start a run from the page.
+    pub model: Option<PathBuf>,
+    #[command(flatten)]
+    pub server: ServerArgs,
+}
+
+/// Viewer flags of `run`.
+#[derive(Debug, Clone, clap::Args)]
+pub struct RunViewArgs {
+    /// Follow the run in the browser viewer; when the run ends, keep serving
+    /// the final model until Ctrl-C.
+    #[arg(long)]
+    pub view: bool,
+    /// Port of the viewer (0: any free one; the printed URL names it).
+    #[arg(long, default_value_t = DEFAULT_PORT, requires = "view")]
+    pub port: u16,
+    /// Address the viewer listens on.
+    #[arg(long, default_value = "127.0.0.1", requires = "view")]
+    pub bind: IpAddr,
+    /// With --view: exit when the run ends instead of serving on.
+    #[arg(long, requires = "view")]
+    pub view_exit: bool,
+}
+
+/// `run` with its viewer flags.
+#[derive(Debug, clap::Args)]
+pub struct RunCommand {
+    #[command(flatten)]
+    pub run: RunArgs,
+    #[command(flatten)]
+    pub view: RunViewArgs,
+}
+
+/// The pipeline defaults of the command line, for runs started from the page.
+fn default_pipeline_args() -> Result<PipelineArgs> {
+    #[derive(Parser)]
+    struct Defaults {
+        #[command(flatten)]
+        p: PipelineArgs,
+    }
+    Ok(Defaults::try_parse_from(["colslam"]).context("pipeline defaults")?.p)
+}
+
+/// Prints the URL as the first stdout line, flushed (scripts read it).
+fn announce(viewer: &Viewer) -> Result<()> {
+    let mut out = std::io::stdout().lock();
+    writeln!(out, "viewer: {}", viewer.url())?;
+    out.flush()?;
+    Ok(())
+}
+
+/// Runs `view`.
+pub fn run(args: &ViewArgs) -> Result<()> {
+    // A bad folder is reported before anything starts.
+    let model = match &args.model {
+        Some(dir) => Some(
+            colslam_scene::read_model(dir).with_context(|| format!("cannot load the model in {}", dir.display()))?,
+        ),
+        None => None,
+    };
+    let viewer = Viewer::start(args.server.options())?;
+    let shared = Arc::new(RunShared::default());
+    viewer.set_controller(Arc::new(ViewController::new(viewer.handle(), shared, default_pipeline_args()?)));
+    if let (Some(rec), Some(dir)) = (&model, &args.model) {
+        viewer.set_reconstruction_from(rec, &dir.display().to_string());
+    }
+    announce(&viewer)?;
+    if let Some(rec) = &model {
+        println!("showing {} cameras and {} points", rec.num_registered_images(), rec.num_points3d());
+    }
+    println!("serving until Ctrl-C");
+    std::io::stdout().flush()?;
+    viewer.wait();
+    Ok(())
+}
+
+/// Runs `run`, with the viewer when `--view` is given.
+pub fn run_command(args: &RunCommand, quiet: bool) -> Result<()> {
+    if !args.view.view {
+        return crate::cmd_run::run(&args.run, quiet);
+    }
+    let v = &args.view;
+    let viewer = Viewer::start(ViewerOptions { bind: v.bind, port: v.port })?;
+    let shared = Arc::new(RunShared::default());
+    let base = args.run.pipeline.clone();
+    viewer.set_controller(Arc::new(ViewController::new(viewer.handle(), Arc::clone(&shared), base)));
+    announce(&viewer)?;
+    // The page's Run button is refused while this run goes on (the flag of
+    // a fresh `shared` is free; run_live releases it).
+    shared.try_begin();
+    let outcome = run_live(&args.run, quiet, &viewer.handle(), &shared, std::time::Instant::now())?;
+    println!("{}", crate::cmd_run::summary(&outcome.report));
+    println!("outputs in {}", args.run.output.display());
+    if let Some(e) = &outcome.eval {
+        println!("{e}");
+    }
+    if v.view_exit {
+        std::io::stdout().flush()?;
+        std::thread::sleep(VIEW_EXIT_LINGER);
+        viewer.shutdown();
+        return Ok(());
+    }
+    println!("run finished; the viewer keeps serving at {} until Ctrl-C", viewer.url());
+    std::io::stdout().flush()?;
+    viewer.wait();
+    Ok(())
+}

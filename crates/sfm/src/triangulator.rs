@@ -354,29 +354,35 @@ pub fn complete_tracks(
     for &pid in points {
         let Some(p) = rec.point3d(pid) else { continue };
         let xyz = p.xyz;
-        let track: Vec<TrackElement> = p.track.clone();
-        let mut in_track: HashSet<ImageId> = track.iter().map(|e| e.image_id).collect();
-        let mut queue = track;
-        let mut k = 0;
-        while k < queue.len() {
-            let el = queue[k];
-            k += 1;
-            for c in graph.transitive_correspondences(el.image_id, el.point2d_idx, opts.complete_max_transitivity) {
-                if in_track.contains(&c.image_id) {
-                    continue;
-                }
-                let cand = TrackElement::new(c.image_id, c.point2d_idx);
-                let Some(v) = view_of(rec, cand) else { continue };
-                if v.point3d.is_some() {
-                    continue;
-                }
-                if reprojection_error_px(rec, cand, &xyz) <= opts.complete_max_reproj_error_px {
-                    rec.add_observation(pid, cand)?;
-                    in_track.insert(c.image_id);
-                    queue.push(cand);
-                    added += 1;
+        // Breadth-first from the track, as COLMAP's CompleteTrack: only
+        // observations that were added are expanded further, up to
+        // `complete_max_transitivity` hops from the original track.
+        let mut in_track: HashSet<ImageId> = p.track.iter().map(|e| e.image_id).collect();
+        let mut frontier: Vec<TrackElement> = p.track.clone();
+        for _hop in 0..opts.complete_max_transitivity {
+            let mut next = Vec::new();
+            for el in &frontier {
+                for &n in graph.correspondences(el.image_id, el.point2d_idx) {
+                    if in_track.contains(&n.image_id) {
+                        continue;
+                    }
+                    let cand = TrackElement::new(n.image_id, n.point2d_idx);
+                    let Some(v) = view_of(rec, cand) else { continue };
+                    if v.point3d.is_some() {
+                        continue;
+                    }
+                    if reprojection_error_px(rec, cand, &xyz) <= opts.complete_max_reproj_error_px {
+                        rec.add_observation(pid, cand)?;
+                        in_track.insert(n.image_id);
+                        next.push(cand);
+                        added += 1;
+                    }
                 }
             }
+            if next.is_empty() {
+                break;
+            }
+            frontier = next;
         }
     }
     Ok(added)

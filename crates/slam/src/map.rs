@@ -147,14 +147,23 @@ fn ransac_options(max_error: f64, seed: u64) -> RansacOptions {
     RansacOptions { max_error, seed, ..RansacOptions::default() }
 }
 
+/// RANSAC trials of the two-view test of keyframe candidates (a coarse
+/// classification: rotation or not).
+pub const KEYFRAME_TWO_VIEW_TRIALS: usize = 500;
+/// RANSAC trials of the two-view geometry of initial pair candidates.
+pub const INIT_TWO_VIEW_TRIALS: usize = 2000;
+/// Candidate second images tried per first image during initialisation.
+const INIT_MAX_SECOND_CANDIDATES: usize = 8;
+
 /// Two-view geometry between two frames' matched keypoints (`query` side
-/// first).
+/// first), with at most `max_trials` RANSAC trials per model.
 pub fn two_view(
     a: &FrameData,
     b: &FrameData,
     matches: &[Match],
     focal: f64,
     seed: u64,
+    max_trials: usize,
 ) -> Option<colslam_estimators::TwoViewGeometry> {
     let x1: Vec<Vec2> = matches.iter().filter_map(|m| a.normalized.get(m.query as usize).copied()).collect();
     let x2: Vec<Vec2> = matches.iter().filter_map(|m| b.normalized.get(m.train as usize).copied()).collect();
@@ -162,7 +171,7 @@ pub fn two_view(
         return None;
     }
     let opts = TwoViewGeometryOptions {
-        ransac: RansacOptions { confidence: 0.999, ..ransac_options(VERIFY_MAX_ERROR_PX / focal, seed) },
+        ransac: RansacOptions { confidence: 0.999, max_trials, ..ransac_options(VERIFY_MAX_ERROR_PX / focal, seed) },
         ..TwoViewGeometryOptions::default()
     };
     estimate_two_view_geometry(&x1, &x2, &opts).ok()
@@ -198,10 +207,13 @@ impl MapState {
         for &(first, _) in firsts.iter().take(2) {
             let mut seconds: Vec<usize> = (0..n).filter(|&j| j != first && count(first, j) >= opts.init_min_inliers).collect();
             seconds.sort_by(|&a, &b| count(first, b).cmp(&count(first, a)).then(a.cmp(&b)));
+            seconds.truncate(INIT_MAX_SECOND_CANDIDATES);
             for second in seconds {
                 let (i, j) = if first < second { (first, second) } else { (second, first) };
                 let Some(matches) = pair_matches.get(&(i, j)) else { continue };
-                let Some(tvg) = two_view(&window[i], &window[j], matches, focal, opts.seed) else { continue };
+                let Some(tvg) = two_view(&window[i], &window[j], matches, focal, opts.seed, INIT_TWO_VIEW_TRIALS) else {
+                    continue;
+                };
                 let motion_ok = tvg.config == TwoViewConfig::Calibrated;
                 let angle_ok = tvg.median_tri_angle_deg.is_some_and(|a| a >= opts.init_min_tri_angle_deg);
                 let Some(rel) = tvg.cam2_from_cam1 else { continue };

@@ -321,7 +321,7 @@ impl Slam {
         let mut failed_attempt = false;
         if n >= self.opts.min_matches && flow.score > self.opts.flow_threshold {
             let rotation = self.opts.reject_pure_rotation
-                && two_view(&data, &kf.data, &matches, 0.5 * (fx + fy), self.opts.seed)
+                && two_view(&data, &kf.data, &matches, 0.5 * (fx + fy), self.opts.seed, crate::map::KEYFRAME_TWO_VIEW_TRIALS)
                     .is_some_and(|g| g.config == TwoViewConfig::Panoramic);
             self.timings.add(Stage::KeyframeTest, t0.elapsed());
             if rotation {

@@ -338,7 +338,7 @@ fn run_peer(ctx: &Ctx, env: &PeerEnv, seq: &Sequence, system: &str, script: &str
     row.mean_reprojection_error_px = json_f64(&peer, "mean_reprojection_error");
     row.timings_s = peer.get("timings_s").cloned();
     if let Some(s) = peer.get("system").and_then(Value::as_str) {
-        tracing::info!("peer {s} on {}", seq.name);
+        tracing::debug!("peer {s} on {}", seq.name);
     }
     if let Some(n) = row.frames.filter(|&n| n > 0) {
         row.ms_per_frame = Some(MS_PER_S * m.wall_s / n as f64);

@@ -206,7 +206,10 @@ impl MapState {
         // clearly bad window quickly.
         for &(first, _) in firsts.iter().take(2) {
             let mut seconds: Vec<usize> = (0..n).filter(|&j| j != first && count(first, j) >= opts.init_min_inliers).collect();
-            seconds.sort_by(|&a, &b| count(first, b).cmp(&count(first, a)).then(a.cmp(&b)));
+            // Video: the frames with the most matches are the nearest, with
+            // the least parallax; among those matched well enough, try the
+            // farthest in time first.
+            seconds.sort_by(|&a, &b| b.abs_diff(first).cmp(&a.abs_diff(first)).then(a.cmp(&b)));
             seconds.truncate(INIT_MAX_SECOND_CANDIDATES);
             for second in seconds {
                 let (i, j) = if first < second { (first, second) } else { (second, first) };

@@ -43,6 +43,12 @@ pub struct PipelineArgs {
     /// Refine focal length and distortion in bundle adjustment.
     #[arg(long)]
     pub refine_intrinsics: bool,
+    /// Largest Hamming distance (of 256 bits) of an ORB match.
+    #[arg(long, default_value_t = SlamOptions::default().max_hamming)]
+    pub max_hamming: u32,
+    /// Lowe's ratio of the nearest-neighbour matcher.
+    #[arg(long, default_value_t = SlamOptions::default().max_ratio)]
+    pub max_ratio: f32,
     /// Minimum triangulation angle of a 3D point, degrees.
     #[arg(long, default_value_t = SlamOptions::default().min_tri_angle_deg)]
     pub min_tri_angle: f64,
@@ -81,6 +87,8 @@ impl PipelineArgs {
             min_matches: self.min_matches,
             refine_intrinsics: self.refine_intrinsics,
             min_tri_angle_deg: self.min_tri_angle,
+            max_hamming: self.max_hamming,
+            max_ratio: self.max_ratio,
             init_min_tri_angle_deg: self.init_min_tri_angle,
             match_keyframes: self.match_keyframes,
             force_keyframe_matches: self.force_keyframe_matches,

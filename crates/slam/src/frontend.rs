@@ -194,7 +194,12 @@ fn make_matcher(options: &SlamOptions, camera: &Camera) -> Result<Box<dyn Matche
             value: options.matcher.clone(),
             reason: "lighterglue matches XFeat features only (use --features xfeat)".into(),
         }),
-        (_, name) => Ok(matcher_by_name(name, &MatcherOptions::default())?),
+        (_, name) => {
+            let mut mo = MatcherOptions::default();
+            mo.nn.max_hamming = options.max_hamming;
+            mo.nn.max_ratio = options.max_ratio;
+            Ok(matcher_by_name(name, &mo)?)
+        }
     }
 }
 

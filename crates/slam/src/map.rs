@@ -217,7 +217,16 @@ impl MapState {
                 let Some(tvg) = two_view(&window[i], &window[j], matches, focal, opts.seed, INIT_TWO_VIEW_TRIALS) else {
                     continue;
                 };
-                let motion_ok = tvg.config == TwoViewConfig::Calibrated;
+                tracing::trace!(
+                    "init candidate {} / {}: {:?}, {} inliers of {}, median angle {:?}",
+                    window[i].index,
+                    window[j].index,
+                    tvg.config,
+                    tvg.num_inliers,
+                    matches.len(),
+                    tvg.median_tri_angle_deg
+                );
+                let motion_ok = matches!(tvg.config, TwoViewConfig::Calibrated | TwoViewConfig::Planar);
                 let angle_ok = tvg.median_tri_angle_deg.is_some_and(|a| a >= opts.init_min_tri_angle_deg);
                 let Some(rel) = tvg.cam2_from_cam1 else { continue };
                 if !motion_ok || !angle_ok || tvg.num_inliers < opts.init_min_inliers {

@@ -14,6 +14,11 @@ pub struct SlamOptions {
     pub matcher: String,
     /// Keypoints per frame. Default 2000.
     pub num_features: usize,
+    /// Largest Hamming distance (bits of 256) of a binary-descriptor match.
+    /// Default 64.
+    pub max_hamming: u32,
+    /// Lowe's ratio of the nearest-neighbour matcher. Default 0.9.
+    pub max_ratio: f32,
     /// Frames considered for map initialisation, `--init-frames` (paper 3.3).
     /// Default 20.
     pub init_frames: usize,
@@ -42,7 +47,8 @@ pub struct SlamOptions {
     pub init_min_tri_angle_deg: f64,
     /// Minimum inlier matches of the initial pair. Default 100.
     pub init_min_inliers: usize,
-    /// Minimum 3D points after initialisation. Default 100.
+    /// Minimum 3D points after initialisation (ORB-SLAM asks for 50;
+    /// COLMAP only for one). Default 50.
     pub init_min_points: usize,
     /// Images in local bundle adjustment: the new keyframe and its most
     /// connected keyframes (paper 3.6: up to six). Default 7.
@@ -76,6 +82,8 @@ impl Default for SlamOptions {
             features: "orb".into(),
             matcher: "nn".into(),
             num_features: 2000,
+            max_hamming: 64,
+            max_ratio: 0.9,
             init_frames: 20,
             flow_threshold: 0.05,
             min_matches: 50,
@@ -85,7 +93,7 @@ impl Default for SlamOptions {
             match_keyframes: 5,
             init_min_tri_angle_deg: 2.0,
             init_min_inliers: 100,
-            init_min_points: 100,
+            init_min_points: 50,
             local_ba_images: 7,
             global_ba_growth: 1.1,
             refine_intrinsics: false,

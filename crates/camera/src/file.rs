@@ -293,10 +293,7 @@ impl Parser {
     }
 
     fn number(&self, e: &Entry) -> Result<f64, CameraError> {
-        let v: f64 = e
-            .value
-            .parse()
-            .map_err(|_| self.err(&e.key, format!("expected a number, got {:?}", e.value)))?;
+        let v: f64 = e.value.parse().map_err(|_| self.err(&e.key, format!("expected a number, got {:?}", e.value)))?;
         if !v.is_finite() {
             return Err(self.err(&e.key, format!("value {} is not finite", e.value)));
         }
@@ -321,10 +318,8 @@ impl Parser {
         let Some(e) = self.raw_any(aliases) else {
             return Err(self.err(&self.written(aliases.first().copied().unwrap_or("width")), "missing image size"));
         };
-        let v: f64 = e
-            .value
-            .parse()
-            .map_err(|_| self.err(&e.key, format!("expected a positive integer, got {:?}", e.value)))?;
+        let v: f64 =
+            e.value.parse().map_err(|_| self.err(&e.key, format!("expected a positive integer, got {:?}", e.value)))?;
         if !(v.is_finite() && v >= 1.0 && v.fract() == 0.0 && v <= u32::MAX as f64) {
             return Err(self.err(&e.key, format!("expected a positive integer, got {}", e.value)));
         }
@@ -343,7 +338,10 @@ impl Parser {
             }
             let list = p.number_list(&e)?;
             if list.len() != names.len() {
-                return Err(p.err(&e.key, format!("expected {} values ({}), got {}", names.len(), names.join(", "), list.len())));
+                return Err(p.err(
+                    &e.key,
+                    format!("expected {} values ({}), got {}", names.len(), names.join(", "), list.len()),
+                ));
             }
             p.used.insert(list_key.to_string());
             for (n, v) in names.iter().zip(list) {
@@ -497,9 +495,8 @@ impl Parser {
         let mut out = Vec::new();
         for (i, tok) in inner.split([',', ' ', '\t']).filter(|t| !t.trim().is_empty()).enumerate() {
             let tok = tok.trim();
-            let v: f64 = tok
-                .parse()
-                .map_err(|_| self.err(&e.key, format!("element {i}: expected a number, got {tok:?}")))?;
+            let v: f64 =
+                tok.parse().map_err(|_| self.err(&e.key, format!("element {i}: expected a number, got {tok:?}")))?;
             if !v.is_finite() {
                 return Err(self.err(&e.key, format!("element {i}: value {tok} is not finite")));
             }

@@ -398,7 +398,10 @@ impl Intrinsics {
         let mut x = *target;
         let start = self.distort(&x);
         let guess = target.component_div(&start).component_mul(target);
-        if guess.x.is_finite() && guess.y.is_finite() && (self.distort(&guess) - target).norm() < (start - target).norm() {
+        if guess.x.is_finite()
+            && guess.y.is_finite()
+            && (self.distort(&guess) - target).norm() < (start - target).norm()
+        {
             x = guess;
         }
         let (d0, mut j) = self.distort_jac(&x);

@@ -118,7 +118,8 @@ pub fn undistorted_camera(distorted: &Camera, options: &UndistortOptions) -> Res
     // Work in COLMAP's convention (image = [0, w] x [0, h]).
     let o = options.pixel_convention.offset_to(PixelConvention::Colmap);
     let (cxc, cyc) = (c.x + o, c.y + o);
-    let to_out = |px: Vec2| distorted.cam_from_img(&Vec2::new(px.x - o, px.y - o)).map(|uv| (fx * uv.x + cxc, fy * uv.y + cyc));
+    let to_out =
+        |px: Vec2| distorted.cam_from_img(&Vec2::new(px.x - o, px.y - o)).map(|uv| (fx * uv.x + cxc, fy * uv.y + cyc));
     // Extremes of the undistorted border: [min, max] of each side.
     let mut left = [f64::MAX, f64::MIN];
     let mut right = left;

@@ -121,7 +121,11 @@ fn orb_slam_settings_files() {
     assert_eq!(c.model, CameraModelId::OpenCvFisheye);
     assert_eq!(c.params, vec![190.97, 190.97, 254.93, 256.90, 0.0034, 0.0007, -0.0020, 0.0002]);
     // ORB-SLAM PinHole without distortion keys.
-    let p = write(dir.path(), "pin.yaml", "%YAML:1.0\nCamera.type: \"PinHole\"\nCamera.fx: 500\nCamera.fy: 500\nCamera.cx: 320\nCamera.cy: 240\nCamera.width: 640\nCamera.height: 480\n");
+    let p = write(
+        dir.path(),
+        "pin.yaml",
+        "%YAML:1.0\nCamera.type: \"PinHole\"\nCamera.fx: 500\nCamera.fy: 500\nCamera.cx: 320\nCamera.cy: 240\nCamera.width: 640\nCamera.height: 480\n",
+    );
     assert_eq!(read_camera_file(&p).unwrap().model, CameraModelId::Pinhole);
 }
 
@@ -141,8 +145,16 @@ const GOOD: &str = "model: PINHOLE\nwidth: 640\nheight: 480\nfx: 500\nfy: 500\nc
 #[test]
 fn error_missing_parameter() {
     check_error(&GOOD.replace("fy: 500\n", ""), "fy", "missing parameter");
-    check_error("model: PINHOLE_RADTAN\nwidth: 640\nheight: 480\nfx: 5\nfy: 5\ncx: 3\ncy: 3\nk1: 0\nk2: 0\np1: 0\n", "p2", "missing");
-    check_error("%YAML:1.0\nCamera.fx: 5\nCamera.fy: 5\nCamera.cx: 3\nCamera.cy: 3\nCamera.height: 480\n", "Camera.width", "missing");
+    check_error(
+        "model: PINHOLE_RADTAN\nwidth: 640\nheight: 480\nfx: 5\nfy: 5\ncx: 3\ncy: 3\nk1: 0\nk2: 0\np1: 0\n",
+        "p2",
+        "missing",
+    );
+    check_error(
+        "%YAML:1.0\nCamera.fx: 5\nCamera.fy: 5\nCamera.cx: 3\nCamera.cy: 3\nCamera.height: 480\n",
+        "Camera.width",
+        "missing",
+    );
     check_error(&GOOD.replace("width: 640\n", ""), "width", "missing");
     check_error(&GOOD.replace("model: PINHOLE\n", ""), "model", "missing");
 }
@@ -151,7 +163,11 @@ fn error_missing_parameter() {
 fn error_non_positive_focal() {
     check_error(&GOOD.replace("fx: 500", "fx: -500"), "fx", "focal length must be positive");
     check_error(&GOOD.replace("fy: 500", "fy: 0"), "fy", "focal length must be positive");
-    check_error("%YAML:1.0\nCamera.fx: 0\nCamera.fy: 5\nCamera.cx: 3\nCamera.cy: 3\nCamera.width: 6\nCamera.height: 6\n", "Camera.fx", "positive");
+    check_error(
+        "%YAML:1.0\nCamera.fx: 0\nCamera.fy: 5\nCamera.cx: 3\nCamera.cy: 3\nCamera.width: 6\nCamera.height: 6\n",
+        "Camera.fx",
+        "positive",
+    );
 }
 
 #[test]
@@ -185,7 +201,11 @@ fn error_unknown_model() {
 fn error_non_numeric_value() {
     check_error(&GOOD.replace("cx: 320", "cx: 320px"), "cx", "expected a number");
     check_error("model: SIMPLE_PINHOLE\nwidth: 6\nheight: 6\nparams: [5, x, 3]\n", "params", "expected a number");
-    check_error("model = PINHOLE\nwidth = 640\nheight = 480\nfx = 5\nfy = \"five\"\ncx = 3\ncy = 3\n", "fy", "expected a number");
+    check_error(
+        "model = PINHOLE\nwidth = 640\nheight = 480\nfx = 5\nfy = \"five\"\ncx = 3\ncy = 3\n",
+        "fy",
+        "expected a number",
+    );
 }
 
 #[test]
@@ -226,13 +246,20 @@ fn euroc_kalibr_sensor_yaml() {
         let c = read_camera_file(&p).unwrap_or_else(|e| panic!("{e}"));
         assert_eq!(c.model, CameraModelId::OpenCv, "{name}");
         assert_eq!((c.width, c.height), (752, 480));
-        assert_eq!(c.params, vec![458.654, 457.296, 367.215, 248.375, -0.28340811, 0.07395907, 0.00019359, 1.76187114e-05]);
+        assert_eq!(
+            c.params,
+            vec![458.654, 457.296, 367.215, 248.375, -0.28340811, 0.07395907, 0.00019359, 1.76187114e-05]
+        );
     }
     // Equidistant (TUM-VI Kalibr) and a bad list.
     let equi = "camera_model: pinhole\nresolution: [512, 512]\nintrinsics: [190.97, 190.97, 254.93, 256.90]\n\
                 distortion_model: equidistant\ndistortion_coefficients: [0.0034, 0.0007, -0.0020, 0.0002]\n";
     let p = write(dir.path(), "equi.yaml", equi);
     assert_eq!(read_camera_file(&p).unwrap().model, CameraModelId::OpenCvFisheye);
-    check_error(&equi.replace("[190.97, 190.97, 254.93, 256.90]", "[190.97, 190.97, 254.93]"), "intrinsics", "expected 4 values");
+    check_error(
+        &equi.replace("[190.97, 190.97, 254.93, 256.90]", "[190.97, 190.97, 254.93]"),
+        "intrinsics",
+        "expected 4 values",
+    );
     check_error(&equi.replace("equidistant", "omni"), "distortion_model", "unknown distortion model");
 }

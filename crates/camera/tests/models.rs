@@ -51,7 +51,8 @@ fn project_unproject_round_trip() {
     for (name, cam) in common::cameras() {
         // Bounding box of the image in normalised coordinates.
         let (w, h) = (cam.width as f64, cam.height as f64);
-        let corners = [(0.0, 0.0), (w, 0.0), (0.0, h), (w, h), (w / 2.0, 0.0), (w / 2.0, h), (0.0, h / 2.0), (w, h / 2.0)];
+        let corners =
+            [(0.0, 0.0), (w, 0.0), (0.0, h), (w, h), (w / 2.0, 0.0), (w / 2.0, h), (0.0, h / 2.0), (w, h / 2.0)];
         let (mut lo, mut hi) = (Vec2::repeat(f64::MAX), Vec2::repeat(f64::MIN));
         for (x, y) in corners {
             let uv = cam.cam_from_img(&Vec2::new(x, y)).unwrap();
@@ -135,7 +136,10 @@ fn random_point(cam: &Camera, rng: &mut SplitMix64) -> Vec3 {
 fn check_column(name: &str, what: &str, ana: Vec2, fd: Vec2) {
     let err = (ana - fd).norm();
     let tol = JAC_REL * fd.norm().max(JAC_FLOOR);
-    assert!(err <= tol, "{name}: d pixel/d {what}: analytic {ana:?} vs finite difference {fd:?} (err {err:e}, tol {tol:e})");
+    assert!(
+        err <= tol,
+        "{name}: d pixel/d {what}: analytic {ana:?} vs finite difference {fd:?} (err {err:e}, tol {tol:e})"
+    );
 }
 
 #[test]

@@ -105,8 +105,12 @@ fn undistorted_camera_matches_pycolmap() {
         for blank in [0.0, 1.0] {
             let input = format!("{}UND {blank}\n", cam_line(&cam));
             let theirs = &run_peer(&py, &input)[0];
-            let ours = undistorted_camera(&cam, &UndistortOptions { blank_pixels: blank, ..Default::default() }).unwrap();
-            eprintln!("{name} blank {blank}: ours {}x{} {:?}, pycolmap {:?}", ours.width, ours.height, ours.params, theirs);
+            let ours =
+                undistorted_camera(&cam, &UndistortOptions { blank_pixels: blank, ..Default::default() }).unwrap();
+            eprintln!(
+                "{name} blank {blank}: ours {}x{} {:?}, pycolmap {:?}",
+                ours.width, ours.height, ours.params, theirs
+            );
             // COLMAP measures the right/bottom margin from `size - 0.5`;
             // we use the image edge, so sizes may differ by a pixel or two.
             let (tw, th) = (theirs[0], theirs[1]);

@@ -3,7 +3,9 @@
 
 mod common;
 
-use colslam_camera::undistort::{UndistortMap, UndistortOptions, UndistortOutput, undistort_points, undistorted_camera};
+use colslam_camera::undistort::{
+    UndistortMap, UndistortOptions, UndistortOutput, undistort_points, undistorted_camera,
+};
 use colslam_camera::{Camera, PixelConvention, Vec2};
 use colslam_image::Image;
 
@@ -34,7 +36,12 @@ fn render(cam: &Camera, period: f64, channels: usize) -> Image {
             let px = Vec2::new(i as f64 + 0.5, j as f64 + 0.5);
             let uv = cam.cam_from_img(&px).unwrap();
             for c in 0..channels {
-                img.set(i, j, c, pattern(uv, period, if channels == 1 { 0 } else { c }).round().clamp(0.0, 255.0) as u8);
+                img.set(
+                    i,
+                    j,
+                    c,
+                    pattern(uv, period, if channels == 1 { 0 } else { c }).round().clamp(0.0, 255.0) as u8,
+                );
             }
         }
     }
@@ -75,8 +82,11 @@ fn remapped_lines_come_out_straight() {
             assert!(err < 2.0, "{name} ({channels} ch): remapped vs ideal pinhole differ by {err:.2} gray levels");
             // Control: without undistortion (same K, distorted image) the
             // stripes are curved and the difference is large.
-            let keep = UndistortMap::new(&cam, &UndistortOptions { output: UndistortOutput::KeepCalibration, ..Default::default() })
-                .unwrap();
+            let keep = UndistortMap::new(
+                &cam,
+                &UndistortOptions { output: UndistortOutput::KeepCalibration, ..Default::default() },
+            )
+            .unwrap();
             let ideal_keep = render(keep.undistorted_camera(), period, channels);
             let control = mean_abs_diff(&keep, &distorted, &ideal_keep);
             let err_keep = mean_abs_diff(&keep, &keep.remap(&distorted).unwrap(), &ideal_keep);

@@ -3,7 +3,7 @@
 //! in TUM layout, ready for `colslam run` and `colslam eval`.
 
 use anyhow::{Context, Result};
-use colslam_synth::{generate, SynthOptions};
+use colslam_synth::{SynthOptions, generate};
 use std::path::PathBuf;
 
 /// Default output folder of `colslam demo`.

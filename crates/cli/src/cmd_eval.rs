@@ -2,7 +2,7 @@
 //! truth, with the numbers of `evo_ape tum -as` / `evo_rpe tum -as`, and a plot.
 
 use anyhow::{Context, Result};
-use colslam_eval::{evaluate_files, plot::plot_evaluation, Alignment, EvalOptions};
+use colslam_eval::{Alignment, EvalOptions, evaluate_files, plot::plot_evaluation};
 use std::path::PathBuf;
 
 /// Alignment choices on the command line.

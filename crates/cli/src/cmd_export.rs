@@ -36,8 +36,7 @@ pub fn run(args: &ExportArgs) -> Result<()> {
     let rec = colslam_scene::read_model(&args.model)?;
     match args.format {
         ExportFormat::Bin | ExportFormat::Txt => {
-            std::fs::create_dir_all(&args.output)
-                .with_context(|| format!("creating {}", args.output.display()))?;
+            std::fs::create_dir_all(&args.output).with_context(|| format!("creating {}", args.output.display()))?;
             let format = match args.format {
                 ExportFormat::Bin => colslam_scene::ModelFormat::Binary,
                 _ => colslam_scene::ModelFormat::Text,

@@ -1,12 +1,12 @@
 //! `colslam run`: the SLAM pipeline on a video or an image sequence.
 
-use anyhow::{bail, Context, Result};
-use colslam_camera::{presets, Camera};
-use colslam_io::{open_source, FrameSource, SourceOptions};
-use colslam_slam::{write_outputs, write_report, EventSink, OutputFormat, RunReport, Slam, SlamOptions, Stage};
+use anyhow::{Context, Result, bail};
+use colslam_camera::{Camera, presets};
+use colslam_io::{FrameSource, SourceOptions, open_source};
+use colslam_slam::{EventSink, OutputFormat, RunReport, Slam, SlamOptions, Stage, write_outputs, write_report};
 use std::path::{Path, PathBuf};
-use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
 
 /// Focal length prior for unknown cameras, as a multiple of the larger image
@@ -137,12 +137,12 @@ fn resolve_camera(args: &RunArgs, source: &dyn FrameSource) -> Result<(Camera, b
         return Ok((cam, false));
     }
     let size = source.image_size();
-    if args.focal.is_none() {
-        if let Some(path) = source.camera_file() {
-            let cam = colslam_camera::file::read_camera_file(&path)?;
-            tracing::info!("camera from {}", path.display());
-            return Ok((cam, false));
-        }
+    if args.focal.is_none()
+        && let Some(path) = source.camera_file()
+    {
+        let cam = colslam_camera::file::read_camera_file(&path)?;
+        tracing::info!("camera from {}", path.display());
+        return Ok((cam, false));
     }
     let Some((w, h)) = size else {
         bail!("{}: cannot tell the image size; give --camera or --preset", args.input.display());
@@ -191,7 +191,12 @@ pub fn run_pipeline(args: &RunArgs, quiet: bool, events: EventSink) -> Result<Ru
 }
 
 /// [`run_pipeline`] with hooks (cancellation, frames and pipeline state for a viewer).
-pub fn run_pipeline_with(args: &RunArgs, quiet: bool, events: EventSink, mut hooks: RunHooks<'_>) -> Result<RunOutcome> {
+pub fn run_pipeline_with(
+    args: &RunArgs,
+    quiet: bool,
+    events: EventSink,
+    mut hooks: RunHooks<'_>,
+) -> Result<RunOutcome> {
     let started = Instant::now();
     let p = &args.pipeline;
     if p.threads > 0 {
@@ -283,10 +288,7 @@ pub fn summary(r: &RunReport) -> String {
     s.push_str(&format!("mean track length {:>8.2}\n", r.mean_track_length));
     s.push_str(&format!("mean reproj. err  {:>8.3} px\n", r.mean_reprojection_error));
     s.push_str(&format!("points per image  {:>8.1}\n", r.points_per_image));
-    s.push_str(&format!(
-        "wall time         {:>8.2} s  ({:.1} ms/frame)\n",
-        r.wall_time_s, r.ms_per_frame
-    ));
+    s.push_str(&format!("wall time         {:>8.2} s  ({:.1} ms/frame)\n", r.wall_time_s, r.ms_per_frame));
     s.push_str(&format!(
         "stages (s)        decode {:.2}, features {:.2}, matching {:.2}, keyframe test {:.2}, init {:.2},\n                  registration {:.2}, triangulation {:.2}, local BA {:.2}, global BA {:.2}, localisation {:.2}, output {:.2}",
         t.decode, t.features, t.matching, t.keyframe_test, t.initialization, t.registration, t.triangulation, t.local_ba,

@@ -7,10 +7,10 @@
 //! scripts and tests).
 
 use crate::cmd_run::{PipelineArgs, RunArgs};
-use crate::viewer_bridge::{run_live, RunShared, ViewController};
+use crate::viewer_bridge::{RunShared, ViewController, run_live};
 use anyhow::{Context, Result};
 use clap::Parser;
-use colslam_viewer::{Viewer, ViewerOptions, DEFAULT_PORT};
+use colslam_viewer::{DEFAULT_PORT, Viewer, ViewerOptions};
 use std::io::Write;
 use std::net::IpAddr;
 use std::path::PathBuf;

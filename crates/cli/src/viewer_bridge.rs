@@ -16,20 +16,20 @@
 //! model, read back from the output folder when the run ends, replaces the
 //! live map with full tracks.
 
-use crate::cmd_run::{run_pipeline_with, PipelineArgs, RunArgs, RunHooks, RunOutcome};
+use crate::cmd_run::{PipelineArgs, RunArgs, RunHooks, RunOutcome, run_pipeline_with};
 use anyhow::Result;
 use colslam_camera::Camera;
 use colslam_image::Image;
 use colslam_scene::Reconstruction;
 use colslam_slam::{EventSink, SlamEvent};
 use colslam_viewer::{
-    downscale_for_view, Extractor, FrameUpdate, KeyframeUpdate, MapDelta, Matcher, RunController, RunSettings,
-    RunState, Summary, ViewerCamera, ViewerHandle, ViewerPoint, ViewerUpdate, VIEW_MAX_WIDTH,
+    Extractor, FrameUpdate, KeyframeUpdate, MapDelta, Matcher, RunController, RunSettings, RunState, Summary,
+    VIEW_MAX_WIDTH, ViewerCamera, ViewerHandle, ViewerPoint, ViewerUpdate, downscale_for_view,
 };
 use std::collections::{HashMap, HashSet, VecDeque};
 use std::path::Path;
 use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
-use std::sync::mpsc::{channel, Receiver, RecvTimeoutError};
+use std::sync::mpsc::{Receiver, RecvTimeoutError, channel};
 use std::sync::{Arc, Condvar, Mutex, MutexGuard};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
@@ -289,11 +289,17 @@ impl Bridge {
                 intro.dedup();
                 for p in points {
                     let observers = self.points.entry(p.id).or_insert_with(|| intro.clone()).clone();
-                    delta.points.push(ViewerPoint { id: p.id, xyz: [p.xyz.x, p.xyz.y, p.xyz.z], color: p.color, observers });
+                    delta.points.push(ViewerPoint {
+                        id: p.id,
+                        xyz: [p.xyz.x, p.xyz.y, p.xyz.z],
+                        color: p.color,
+                        observers,
+                    });
                 }
                 for (image_id, frame_index, pose) in poses {
                     let next = self.next_order;
-                    let name = self.keyframe_names.get(&image_id).cloned().unwrap_or_else(|| format!("frame {frame_index}"));
+                    let name =
+                        self.keyframe_names.get(&image_id).cloned().unwrap_or_else(|| format!("frame {frame_index}"));
                     let (order, name) = self.cameras.entry(image_id).or_insert((next, name)).clone();
                     if order == next {
                         self.next_order = next.saturating_add(1);
@@ -301,7 +307,8 @@ impl Bridge {
                     delta.cameras.push(self.viewer_camera(image_id, name, order, pose));
                 }
                 (self.out)(ViewerUpdate::MapDelta(delta));
-                self.summary = Summary { keyframes, points: num_points, observations, mean_reproj_error, ..self.summary };
+                self.summary =
+                    Summary { keyframes, points: num_points, observations, mean_reproj_error, ..self.summary };
                 self.send_summary();
             }
             SlamEvent::BundleAdjusted { global: true, iterations, final_cost, .. } => {
@@ -322,9 +329,7 @@ impl Bridge {
                 self.new_keyframes.clear();
                 self.initializing = true;
                 self.summary = Summary::default();
-                (self.out)(ViewerUpdate::Status(format!(
-                    "map {new_map} started at frame {frame_index}: {reason}"
-                )));
+                (self.out)(ViewerUpdate::Status(format!("map {new_map} started at frame {frame_index}: {reason}")));
             }
             SlamEvent::Finished => {
                 (self.out)(ViewerUpdate::Status("frames done; writing outputs".into()));
@@ -474,7 +479,8 @@ pub fn run_live(
     let in_flight = Arc::new(AtomicUsize::new(0));
     let viewer = handle.clone();
     let bridge = Bridge::new(Box::new(move |u| viewer.apply(u)), Arc::clone(&in_flight), &args.pipeline);
-    let thread = std::thread::Builder::new().name("colslam-viewer-bridge".into()).spawn(move || bridge.run(events, msgs));
+    let thread =
+        std::thread::Builder::new().name("colslam-viewer-bridge".into()).spawn(move || bridge.run(events, msgs));
     let thread = match thread {
         Ok(t) => Some(t),
         Err(e) => {
@@ -589,7 +595,8 @@ pub fn run_args_from_settings(base: &PipelineArgs, s: &RunSettings) -> Result<Ru
     .into();
     p.skip = s.skip_usize();
     p.max_frames = s.max_frames.map(|m| usize::try_from(m).unwrap_or(usize::MAX));
-    p.init_frames = usize::try_from(s.init_frames).map_err(|_| format!("invalid initialisation frames {}", s.init_frames))?;
+    p.init_frames =
+        usize::try_from(s.init_frames).map_err(|_| format!("invalid initialisation frames {}", s.init_frames))?;
     p.flow_threshold = s.flow_threshold;
     p.slam_options().validate().map_err(|e| e.to_string())?;
     Ok(RunArgs {
@@ -616,7 +623,9 @@ impl RunController for ViewController {
         let not_before = Instant::now() + MIN_RUN_STATE_DELAY;
         let spawned = std::thread::Builder::new().name("colslam-run".into()).spawn(move || {
             match run_live(&args, true, &handle, &shared, not_before) {
-                Ok(_) => tracing::info!("run on {} finished; outputs in {}", args.input.display(), args.output.display()),
+                Ok(_) => {
+                    tracing::info!("run on {} finished; outputs in {}", args.input.display(), args.output.display())
+                }
                 Err(e) => tracing::error!("run on {} failed: {e:#}", args.input.display()),
             }
         });

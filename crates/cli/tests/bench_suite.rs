@@ -64,10 +64,7 @@ fn tiny_suite_with_a_failing_sequence() {
     assert!(md.contains("Failures"), "{md}");
 
     // The synthetic run went on and succeeded, with every column filled.
-    let syn = runs
-        .iter()
-        .find(|r| r["sequence"] == "synthetic-40" && r["setting"] == "")
-        .expect("synthetic row");
+    let syn = runs.iter().find(|r| r["sequence"] == "synthetic-40" && r["setting"] == "").expect("synthetic row");
     assert_eq!(syn["status"], "ok", "{syn}");
     assert_eq!(syn["frames"], 40);
     let ate = syn["ate_rmse_m"].as_f64().expect("ATE");
@@ -104,13 +101,7 @@ fn tiny_suite_with_a_failing_sequence() {
     let zip = tmp.path().join("evo.zip");
     let printed = colslam_testutil::run_python(
         &py,
-        &[
-            "-c",
-            EVO_APE,
-            gt.to_str().unwrap(),
-            run_dir.join("trajectory.tum").to_str().unwrap(),
-            zip.to_str().unwrap(),
-        ],
+        &["-c", EVO_APE, gt.to_str().unwrap(), run_dir.join("trajectory.tum").to_str().unwrap(), zip.to_str().unwrap()],
     );
     let evo: f64 = printed.trim().parse().expect("evo rmse");
     assert!((evo - ate).abs() < EVO_TOL, "suite ATE {ate} vs evo_ape {evo}");
@@ -119,7 +110,12 @@ fn tiny_suite_with_a_failing_sequence() {
 #[test]
 fn bad_arguments_are_errors() {
     for args in [&["bench", "--sweep", "bogus=1"][..], &["bench", "--only", "nope"], &["bench", "--runs", "0"]] {
-        let out = Command::new(env!("CARGO_BIN_EXE_colslam")).args(args).arg("--out").arg(std::env::temp_dir().join("colslam-bench-bad")).output().unwrap();
+        let out = Command::new(env!("CARGO_BIN_EXE_colslam"))
+            .args(args)
+            .arg("--out")
+            .arg(std::env::temp_dir().join("colslam-bench-bad"))
+            .output()
+            .unwrap();
         assert!(!out.status.success(), "{args:?} must fail");
         assert!(!String::from_utf8_lossy(&out.stderr).is_empty(), "{args:?} must say why");
     }

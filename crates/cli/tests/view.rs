@@ -154,22 +154,23 @@ fn run_with_view_streams_keyframes_live() {
     assert!(status.success(), "run --view failed");
     assert!(out.join("cameras.bin").is_file(), "outputs written");
 
-    let live_keyframes: std::collections::BTreeSet<u64> = events
-        .iter()
-        .filter(|e| e["full"] == false)
-        .filter_map(|e| e["keyframe"]["image_id"].as_u64())
-        .collect();
+    let live_keyframes: std::collections::BTreeSet<u64> =
+        events.iter().filter(|e| e["full"] == false).filter_map(|e| e["keyframe"]["image_id"].as_u64()).collect();
     assert!(live_keyframes.len() >= 2, "keyframes arrive as increments while the run goes on: {live_keyframes:?}");
     let with_lines = events.iter().filter(|e| e["frame"]["lines"].as_array().is_some_and(|a| !a.is_empty())).count();
     assert!(with_lines > 0, "frames come with flow lines");
     assert!(events.iter().any(|e| e["frame"]["picture"].is_u64()), "frames come with their picture");
-    let live_points = events.iter().filter(|e| e["full"] == false).any(|e| e["points"]["ids"].as_array().is_some_and(|a| !a.is_empty()));
+    let live_points = events
+        .iter()
+        .filter(|e| e["full"] == false)
+        .any(|e| e["points"]["ids"].as_array().is_some_and(|a| !a.is_empty()));
     assert!(live_points, "map increments arrive during the run");
     let states: Vec<&str> = events.iter().filter_map(|e| e["run"]["state"].as_str()).collect();
     assert!(states.contains(&"running"), "states: {states:?}");
     assert_eq!(states.last(), Some(&"finished"), "the run ends finished: {states:?}");
     let last_summary = events.iter().rev().find_map(|e| e.get("summary")).expect("a summary");
-    let report: Value = serde_json::from_str(&std::fs::read_to_string(out.join("report.json")).expect("report")).expect("json");
+    let report: Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("report.json")).expect("report")).expect("json");
     assert_eq!(last_summary["points"], report["points"], "the final model is shown");
 }
 
@@ -181,7 +182,12 @@ fn view_runs_the_pipeline_from_the_page_api() {
     let (_child, url, _stdout) = spawn_viewer(&["-q".as_ref(), "view".as_ref(), "--port".as_ref(), "0".as_ref()]);
     let q = format!("/api/max_frames?input={}&skip=3", seq.display());
     assert_eq!(get_json(&url, &q)["max_frames"], 14, "40 frames with skip 3");
-    let (status, body) = request(&url, "POST", "/api/run", Some(&serde_json::json!({"input": dir.path().join("missing"), "output": out})));
+    let (status, body) = request(
+        &url,
+        "POST",
+        "/api/run",
+        Some(&serde_json::json!({"input": dir.path().join("missing"), "output": out})),
+    );
     assert_eq!(status, 400, "a missing input is refused at once: {body}");
     let (status, body) = request(&url, "POST", "/api/run", Some(&serde_json::json!({"input": seq, "output": out})));
     assert_eq!(status, 200, "run started: {body}");
@@ -216,7 +222,8 @@ fn view_runs_the_pipeline_from_the_page_api() {
         assert!(Instant::now() < deadline, "stopped run did not end");
         std::thread::sleep(Duration::from_millis(100));
     }
-    let report: Value = serde_json::from_str(&std::fs::read_to_string(out2.join("report.json")).expect("report")).expect("json");
+    let report: Value =
+        serde_json::from_str(&std::fs::read_to_string(out2.join("report.json")).expect("report")).expect("json");
     assert!(report["frames"].as_u64().is_some_and(|n| n < 40), "stopped early: {} frames", report["frames"]);
     assert!(report["notes"].to_string().contains("stopped on request"), "notes: {}", report["notes"]);
 }
@@ -234,7 +241,8 @@ fn skip_or_fail(what: &str) {
 fn browser_run_from_the_settings_panel() {
     let root = colslam_testutil::workspace_root();
     let playwright = root.join("crates/viewer/e2e/node_modules/playwright-core/index.mjs");
-    let chromium = std::env::var_os("COLSLAM_CHROMIUM").map(PathBuf::from).unwrap_or_else(|| PathBuf::from("/usr/bin/chromium"));
+    let chromium =
+        std::env::var_os("COLSLAM_CHROMIUM").map(PathBuf::from).unwrap_or_else(|| PathBuf::from("/usr/bin/chromium"));
     let node_ok = Command::new("node").arg("--version").output().map(|o| o.status.success()).unwrap_or(false);
     if !node_ok {
         return skip_or_fail("node is not installed");

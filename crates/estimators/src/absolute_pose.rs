@@ -5,9 +5,9 @@
 //! Residuals are reprojection errors in normalised image coordinates; to
 //! work in pixels divide pixel thresholds by the focal length.
 
-use crate::error::{check_pairs, EstimatorError};
+use crate::error::{EstimatorError, check_pairs};
 use crate::p3p;
-use crate::ransac::{ransac, Estimator, RansacOptions};
+use crate::ransac::{Estimator, RansacOptions, ransac};
 use crate::{Mat3, Vec2, Vec3};
 use colslam_geometry::{Quat, Rigid3};
 use nalgebra::{SMatrix, SVector};
@@ -144,9 +144,13 @@ pub fn refine_absolute_pose(
     check_pairs("refine absolute pose", points2d, points3d, p3p::SAMPLE_SIZE)?;
     let initial_cost = robust_cost(initial, points2d, points3d, &opts.loss);
     if !initial_cost.is_finite() {
-        return Err(EstimatorError::Degenerate { problem: "refine absolute pose", reason: "a point is behind the initial camera" });
+        return Err(EstimatorError::Degenerate {
+            problem: "refine absolute pose",
+            reason: "a point is behind the initial camera",
+        });
     }
-    let (pose, final_cost, iterations) = lm(initial, points2d, points3d, &opts.loss, opts.max_iterations, opts.function_tolerance, opts.step_tolerance);
+    let (pose, final_cost, iterations) =
+        lm(initial, points2d, points3d, &opts.loss, opts.max_iterations, opts.function_tolerance, opts.step_tolerance);
     Ok((pose, PoseRefineSummary { initial_cost, final_cost, iterations }))
 }
 
@@ -242,7 +246,11 @@ impl Estimator for AbsolutePoseEstimator<'_> {
     }
     fn estimate_minimal(&self, s: &[usize], models: &mut Vec<Rigid3>) {
         // RANSAC passes exactly `sample_size()` indices, all < num_data().
-        p3p::solve([self.bearings[s[0]], self.bearings[s[1]], self.bearings[s[2]]], [self.p3[s[0]], self.p3[s[1]], self.p3[s[2]]], models);
+        p3p::solve(
+            [self.bearings[s[0]], self.bearings[s[1]], self.bearings[s[2]]],
+            [self.p3[s[0]], self.p3[s[1]], self.p3[s[2]]],
+            models,
+        );
     }
     fn estimate_nonminimal(&self, inliers: &[usize], current: &Rigid3, models: &mut Vec<Rigid3>) {
         let p2: Vec<Vec2> = inliers.iter().map(|&i| self.p2[i]).collect();
@@ -295,7 +303,10 @@ impl AbsolutePoseOptions {
         self.ransac.validate()?;
         self.refine_options.validate()?;
         if self.min_num_inliers < p3p::SAMPLE_SIZE {
-            return Err(EstimatorError::InvalidOptions(format!("absolute pose min_num_inliers must be >= 3, got {}", self.min_num_inliers)));
+            return Err(EstimatorError::InvalidOptions(format!(
+                "absolute pose min_num_inliers must be >= 3, got {}",
+                self.min_num_inliers
+            )));
         }
         Ok(())
     }

@@ -12,7 +12,7 @@
 //! Planar point sets (a vanishing third principal axis) are reported as
 //! degenerate: use P3P plus refinement for those.
 
-use crate::error::{all_finite, check_pairs, rigid_align, EstimatorError};
+use crate::error::{EstimatorError, all_finite, check_pairs, rigid_align};
 use crate::{Mat3, Vec2, Vec3};
 use colslam_geometry::Rigid3;
 use nalgebra::{DMatrix, SMatrix, SVector};
@@ -35,7 +35,8 @@ const PRODUCTS: [(usize, usize); 10] = [(0, 0), (0, 1), (1, 1), (0, 2), (1, 2), 
 /// normalised image points and non-planar world points.
 pub fn estimate_epnp(points2d: &[Vec2], points3d: &[Vec3]) -> Result<Rigid3, EstimatorError> {
     check_pairs(PROBLEM, points2d, points3d, MIN_POINTS)?;
-    solve(points2d, points3d).ok_or(EstimatorError::Degenerate { problem: PROBLEM, reason: "planar, collinear or coincident world points" })
+    solve(points2d, points3d)
+        .ok_or(EstimatorError::Degenerate { problem: PROBLEM, reason: "planar, collinear or coincident world points" })
 }
 
 fn reprojection_sq_sum(pose: &Rigid3, p2: &[Vec2], p3: &[Vec3]) -> f64 {
@@ -193,10 +194,8 @@ fn pose_from_betas(beta: &[f64; 4], v: &[SVector<f64, 12>], alphas: &[[f64; 4]],
         c += vk * *b;
     }
     let ctrl: Vec<Vec3> = (0..4).map(|j| Vec3::new(c[3 * j], c[3 * j + 1], c[3 * j + 2])).collect();
-    let mut cam: Vec<Vec3> = alphas
-        .iter()
-        .map(|a| ctrl[0] * a[0] + ctrl[1] * a[1] + ctrl[2] * a[2] + ctrl[3] * a[3])
-        .collect();
+    let mut cam: Vec<Vec3> =
+        alphas.iter().map(|a| ctrl[0] * a[0] + ctrl[1] * a[1] + ctrl[2] * a[2] + ctrl[3] * a[3]).collect();
     // The null space fixes the control points up to sign: pick the sign
     // that puts the points in front of the camera.
     let front = cam.iter().filter(|p| p.z > 0.0).count();
@@ -217,7 +216,8 @@ mod tests {
         for seed in 0..100 {
             let s = absolute_scene(seed, 6 + seed as usize % 50, 0.0, 0.0);
             let p = estimate_epnp(&s.points2d, &s.points3d).unwrap();
-            let err = p.rotation.angle_to(&s.cam_from_world.rotation) + (p.translation - s.cam_from_world.translation).norm();
+            let err =
+                p.rotation.angle_to(&s.cam_from_world.rotation) + (p.translation - s.cam_from_world.translation).norm();
             worst = worst.max(err);
         }
         assert!(worst < 1e-8, "worst EPnP error {worst}");

@@ -13,7 +13,7 @@
 //! four smallest right singular vectors), as COLMAP's
 //! `EssentialMatrixFivePointEstimator` does for its local optimisation.
 
-use crate::error::{all_finite, check_pairs, EstimatorError};
+use crate::error::{EstimatorError, all_finite, check_pairs};
 use crate::poly;
 use crate::{Mat3, Vec2, Vec3};
 use colslam_geometry::Rigid3;
@@ -261,9 +261,8 @@ pub(crate) fn solve(x1: &[Vec2], x2: &[Vec2], out: &mut Vec<Mat3>) {
         return;
     };
     // E as a matrix of linear polynomials.
-    let e: [[P3; 3]; 3] = std::array::from_fn(|i| {
-        std::array::from_fn(|j| P3::linear(bx[(i, j)], by[(i, j)], bz[(i, j)], bw[(i, j)]))
-    });
+    let e: [[P3; 3]; 3] =
+        std::array::from_fn(|i| std::array::from_fn(|j| P3::linear(bx[(i, j)], by[(i, j)], bz[(i, j)], bw[(i, j)])));
     // E Eᵀ (quadratic entries) and its trace.
     let mut eet = [[P3::zero(); 3]; 3];
     for i in 0..3 {
@@ -342,13 +341,7 @@ pub(crate) fn solve(x1: &[Vec2], x2: &[Vec2], out: &mut Vec<Mat3>) {
         .map(|&(ra, rb)| {
             let px = vec![-b(rb, 0), b(ra, 0) - b(rb, 1), b(ra, 1) - b(rb, 2), b(ra, 2)];
             let py = vec![-b(rb, 3), b(ra, 3) - b(rb, 4), b(ra, 4) - b(rb, 5), b(ra, 5)];
-            let p1 = vec![
-                -b(rb, 6),
-                b(ra, 6) - b(rb, 7),
-                b(ra, 7) - b(rb, 8),
-                b(ra, 8) - b(rb, 9),
-                b(ra, 9),
-            ];
+            let p1 = vec![-b(rb, 6), b(ra, 6) - b(rb, 7), b(ra, 7) - b(rb, 8), b(ra, 8) - b(rb, 9), b(ra, 9)];
             [px, py, p1]
         })
         .collect();
@@ -490,17 +483,16 @@ pub fn pose_from_essential(e: &Mat3, x1: &[Vec2], x2: &[Vec2]) -> Result<Recover
     for (r, t) in cands.iter() {
         let (valid, points3d, num_valid) = cheirality(r, t, x1, x2);
         if best.as_ref().is_none_or(|b| num_valid > b.num_valid) {
-            best = Some(RecoveredPose {
-                cam2_from_cam1: Rigid3::from_rotation_matrix(r, *t),
-                valid,
-                num_valid,
-                points3d,
-            });
+            best =
+                Some(RecoveredPose { cam2_from_cam1: Rigid3::from_rotation_matrix(r, *t), valid, num_valid, points3d });
         }
     }
     match best {
         Some(b) if b.num_valid > 0 => Ok(b),
-        _ => Err(EstimatorError::Degenerate { problem: "pose from essential", reason: "no point in front of both cameras" }),
+        _ => Err(EstimatorError::Degenerate {
+            problem: "pose from essential",
+            reason: "no point in front of both cameras",
+        }),
     }
 }
 
@@ -517,11 +509,10 @@ mod tests {
             let es = estimate_essential_5pt(&s.x1, &s.x2).unwrap();
             let truth = essential_from_pose(&s.cam2_from_cam1);
             let truth = truth / truth.norm();
-            let err = es
-                .iter()
-                .map(|e| (e - truth).norm().min((e + truth).norm()))
-                .fold(f64::INFINITY, f64::min);
-            if err > 1e-9 { eprintln!("seed {seed} err {err:e} n {}", es.len()); }
+            let err = es.iter().map(|e| (e - truth).norm().min((e + truth).norm())).fold(f64::INFINITY, f64::min);
+            if err > 1e-9 {
+                eprintln!("seed {seed} err {err:e} n {}", es.len());
+            }
             worst = worst.max(err);
         }
         assert!(worst < 1e-8, "worst essential error {worst}");

@@ -5,7 +5,7 @@
 //! Both return `F` with `x2ᵀ F x1 = 0`, scaled to unit Frobenius norm. The
 //! residual to use with them is [`crate::sampson_error_sq`].
 
-use crate::error::{all_finite, check_pairs, EstimatorError};
+use crate::error::{EstimatorError, all_finite, check_pairs};
 use crate::poly;
 use crate::{Mat3, Vec2, Vec3};
 use nalgebra::{DMatrix, SMatrix, SVector};

@@ -8,8 +8,8 @@
 //! `nᵀ X1 = d` in camera 1 and `cam2_from_cam1 = (R, t)`,
 //! `H = R + t nᵀ / d` (on normalised coordinates).
 
-use crate::error::{all_finite, check_pairs, EstimatorError};
-use crate::essential_5pt::{cheirality, RecoveredPose};
+use crate::error::{EstimatorError, all_finite, check_pairs};
+use crate::essential_5pt::{RecoveredPose, cheirality};
 use crate::fundamental::{apply, normalizing_transform};
 use crate::{Mat3, Vec2, Vec3};
 use colslam_geometry::Rigid3;
@@ -28,10 +28,8 @@ const PURE_ROTATION_TOL: f64 = 1e-12;
 /// squares for `n > 4`), scaled to unit Frobenius norm.
 pub fn estimate_homography_dlt(x1: &[Vec2], x2: &[Vec2]) -> Result<Mat3, EstimatorError> {
     check_pairs("homography DLT", x1, x2, SAMPLE_SIZE)?;
-    solve(x1, x2).ok_or(EstimatorError::Degenerate {
-        problem: "homography DLT",
-        reason: "coincident or collinear points",
-    })
+    solve(x1, x2)
+        .ok_or(EstimatorError::Degenerate { problem: "homography DLT", reason: "coincident or collinear points" })
 }
 
 pub(crate) fn solve(x1: &[Vec2], x2: &[Vec2]) -> Option<Mat3> {
@@ -208,11 +206,8 @@ fn project_to_rotation(m: &Mat3) -> Mat3 {
 /// rotated ray is in front of camera 2).
 pub fn pose_from_homography(h: &Mat3, x1: &[Vec2], x2: &[Vec2]) -> Result<RecoveredPose, EstimatorError> {
     check_pairs("pose from homography", x1, x2, 1)?;
-    let positive = x1
-        .iter()
-        .zip(x2)
-        .filter(|(p, q)| Vec3::new(q.x, q.y, 1.0).dot(&(h * Vec3::new(p.x, p.y, 1.0))) > 0.0)
-        .count();
+    let positive =
+        x1.iter().zip(x2).filter(|(p, q)| Vec3::new(q.x, q.y, 1.0).dot(&(h * Vec3::new(p.x, p.y, 1.0))) > 0.0).count();
     let sign = if 2 * positive >= x1.len() { 1.0 } else { -1.0 };
     let cands = decompose_signed(&(h * sign))?;
     let mut best: Option<RecoveredPose> = None;
@@ -232,12 +227,20 @@ pub fn pose_from_homography(h: &Mat3, x1: &[Vec2], x2: &[Vec2]) -> Result<Recove
         };
         if best.as_ref().is_none_or(|b| num_valid > b.num_valid) {
             let t = if t_norm > 0.0 { c.translation / t_norm } else { Vec3::zeros() };
-            best = Some(RecoveredPose { cam2_from_cam1: Rigid3::from_rotation_matrix(&c.rotation, t), valid, num_valid, points3d });
+            best = Some(RecoveredPose {
+                cam2_from_cam1: Rigid3::from_rotation_matrix(&c.rotation, t),
+                valid,
+                num_valid,
+                points3d,
+            });
         }
     }
     match best {
         Some(b) if b.num_valid > 0 => Ok(b),
-        _ => Err(EstimatorError::Degenerate { problem: "pose from homography", reason: "no decomposition puts points in front of both cameras" }),
+        _ => Err(EstimatorError::Degenerate {
+            problem: "pose from homography",
+            reason: "no decomposition puts points in front of both cameras",
+        }),
     }
 }
 
@@ -280,9 +283,12 @@ mod tests {
             // The true decomposition is among the candidates ...
             let true_rot = s.cam2_from_cam1.rotation_matrix();
             let t_over_d = s.cam2_from_cam1.translation / d;
-            assert!(decs.iter().any(|c| (c.normal - n).norm() < 1e-8
-                && (c.rotation - true_rot).norm() < 1e-8
-                && (c.translation - t_over_d).norm() < 1e-8), "seed {seed}");
+            assert!(
+                decs.iter().any(|c| (c.normal - n).norm() < 1e-8
+                    && (c.rotation - true_rot).norm() < 1e-8
+                    && (c.translation - t_over_d).norm() < 1e-8),
+                "seed {seed}"
+            );
             // ... and usually the selected one (two decompositions can both
             // satisfy cheirality: the classical two-fold ambiguity).
             let ok = rotation_error_deg(&pose.cam2_from_cam1, &s.cam2_from_cam1) < 1e-6

@@ -33,36 +33,36 @@ pub mod triangulation;
 pub mod two_view_geometry;
 
 // Generic robust estimation.
-pub use ransac::{ransac, Estimator, RansacOptions, RansacReport, Support, SupportMeasure};
+pub use ransac::{Estimator, RansacOptions, RansacReport, Support, SupportMeasure, ransac};
 // Minimal and non-minimal solvers (one per file).
 pub use epnp::estimate_epnp;
 pub use essential_5pt::{
-    decompose_essential, essential_from_pose, estimate_essential_5pt, pose_from_essential, sampson_error_sq,
-    RecoveredPose,
+    RecoveredPose, decompose_essential, essential_from_pose, estimate_essential_5pt, pose_from_essential,
+    sampson_error_sq,
 };
 pub use fundamental::{estimate_fundamental_7pt, estimate_fundamental_8pt};
 pub use homography::{
-    decompose_homography, estimate_homography_dlt, homography_from_pose, pose_from_homography, transfer_error_sq,
-    HomographyDecomposition,
+    HomographyDecomposition, decompose_homography, estimate_homography_dlt, homography_from_pose, pose_from_homography,
+    transfer_error_sq,
 };
 pub use p3p::{estimate_p3p, estimate_p3p_grunert};
 // Robust pipelines.
 pub use absolute_pose::{
-    estimate_absolute_pose, refine_absolute_pose, AbsolutePoseOptions, AbsolutePoseReport, PoseRefineOptions,
-    PoseRefineSummary, RobustLoss,
+    AbsolutePoseOptions, AbsolutePoseReport, PoseRefineOptions, PoseRefineSummary, RobustLoss, estimate_absolute_pose,
+    refine_absolute_pose,
 };
 pub use relative_pose::{
-    estimate_essential, estimate_fundamental, estimate_homography, estimate_relative_pose, refine_relative_pose,
     EssentialEstimator, FundamentalEstimator, HomographyEstimator, RelativePoseOptions, RelativePoseRefineOptions,
-    RelativePoseReport,
+    RelativePoseReport, estimate_essential, estimate_fundamental, estimate_homography, estimate_relative_pose,
+    refine_relative_pose,
 };
 pub use triangulation::{
-    triangulate_multiview, triangulate_two_view, triangulation_angle, TriangulatedPoint, TriangulationOptions,
-    TriangulationRejection,
+    TriangulatedPoint, TriangulationOptions, TriangulationRejection, triangulate_multiview, triangulate_two_view,
+    triangulation_angle,
 };
-pub use two_view_geometry::{estimate_two_view_geometry, TwoViewConfig, TwoViewGeometry, TwoViewGeometryOptions};
+pub use two_view_geometry::{TwoViewConfig, TwoViewGeometry, TwoViewGeometryOptions, estimate_two_view_geometry};
 // Errors and re-exports from colslam-geometry (Umeyama similarity included).
-pub use colslam_geometry::{umeyama, Rigid3, Sim3, UmeyamaError};
+pub use colslam_geometry::{Rigid3, Sim3, UmeyamaError, umeyama};
 pub use error::{EstimatorError, MAX_COORD};
 
 /// 2-vector of f64 (a normalised image point).

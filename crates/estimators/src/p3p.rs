@@ -14,7 +14,7 @@
 //! coefficients. Each solution's camera-frame points are aligned to the world
 //! points by the closed-form absolute orientation (Umeyama 1991).
 
-use crate::error::{all_finite, check_pairs, rigid_align, EstimatorError};
+use crate::error::{EstimatorError, all_finite, check_pairs, rigid_align};
 use crate::poly;
 use crate::{Mat3, Vec2, Vec3};
 use colslam_geometry::Rigid3;
@@ -277,9 +277,14 @@ mod tests {
         let mut worst: f64 = 0.0;
         for seed in 0..100 {
             let mut rng = colslam_geometry::SplitMix64::new(seed);
-            let pose = Rigid3::new(crate::synthetic::random_rotation(&mut rng, 3.0), Vec3::new(rng.normal(), rng.normal(), rng.normal()));
+            let pose = Rigid3::new(
+                crate::synthetic::random_rotation(&mut rng, 3.0),
+                Vec3::new(rng.normal(), rng.normal(), rng.normal()),
+            );
             let inv = pose.inverse();
-            let cam: Vec<Vec3> = (0..3).map(|_| Vec3::new(rng.uniform(-1.0, 1.0), rng.uniform(-1.0, 1.0), rng.uniform(48.0, 52.0))).collect();
+            let cam: Vec<Vec3> = (0..3)
+                .map(|_| Vec3::new(rng.uniform(-1.0, 1.0), rng.uniform(-1.0, 1.0), rng.uniform(48.0, 52.0)))
+                .collect();
             let p3: Vec<Vec3> = cam.iter().map(|c| inv.transform_point(c)).collect();
             let p2: Vec<Vec2> = cam.iter().map(|c| Vec2::new(c.x / c.z, c.y / c.z)).collect();
             let poses = estimate_p3p(&p2, &p3).unwrap();
@@ -303,7 +308,10 @@ mod tests {
             solve([f[0], f[1], f[2]], x, &mut a);
             solve_grunert([f[0], f[1], f[2]], x, &mut b);
             for p in &b {
-                let d = a.iter().map(|q| q.rotation.angle_to(&p.rotation) + (q.translation - p.translation).norm()).fold(f64::INFINITY, f64::min);
+                let d = a
+                    .iter()
+                    .map(|q| q.rotation.angle_to(&p.rotation) + (q.translation - p.translation).norm())
+                    .fold(f64::INFINITY, f64::min);
                 assert!(d < 1e-7, "seed {seed}: Grunert solution missing from Lambda Twist ({d})");
             }
         }

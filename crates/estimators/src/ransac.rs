@@ -39,13 +39,7 @@ pub trait Estimator {
     /// Re-estimates from a (larger) set of inliers, starting from the current
     /// best model `current` where that helps (iterative refinement). The
     /// default does nothing, which disables local optimisation.
-    fn estimate_nonminimal(
-        &self,
-        _inliers: &[usize],
-        _current: &Self::Model,
-        _models: &mut Vec<Self::Model>,
-    ) {
-    }
+    fn estimate_nonminimal(&self, _inliers: &[usize], _current: &Self::Model, _models: &mut Vec<Self::Model>) {}
 
     /// Writes the **squared** residual of every data point into `out`
     /// (`out.len() == num_data()`). Non-finite values count as outliers.
@@ -128,10 +122,7 @@ impl RansacOptions {
             ));
         }
         if !(self.dyn_trials_multiplier.is_finite() && self.dyn_trials_multiplier > 0.0) {
-            return bad(format!(
-                "ransac dyn_trials_multiplier must be positive, got {}",
-                self.dyn_trials_multiplier
-            ));
+            return bad(format!("ransac dyn_trials_multiplier must be positive, got {}", self.dyn_trials_multiplier));
         }
         if !(self.min_inlier_ratio > 0.0 && self.min_inlier_ratio <= 1.0) {
             return bad(format!("ransac min_inlier_ratio must lie in (0, 1], got {}", self.min_inlier_ratio));

@@ -10,11 +10,11 @@
 //! (five parameters, so this is cheap and avoids a long hand derivation).
 
 use crate::absolute_pose::RobustLoss;
-use crate::error::{check_pairs, EstimatorError};
+use crate::error::{EstimatorError, check_pairs};
 use crate::essential_5pt::{self, essential_from_pose, pose_from_essential, sampson_error_sq};
 use crate::fundamental;
 use crate::homography::{self, transfer_error_sq};
-use crate::ransac::{ransac, Estimator, RansacOptions, RansacReport};
+use crate::ransac::{Estimator, RansacOptions, RansacReport, ransac};
 use crate::{Mat3, Vec2, Vec3};
 use colslam_geometry::{Quat, Rigid3};
 use nalgebra::{DMatrix, DVector, SMatrix, SVector};
@@ -122,19 +122,31 @@ impl Estimator for HomographyEstimator<'_> {
 }
 
 /// LO-RANSAC essential matrix on normalised coordinates.
-pub fn estimate_essential(x1: &[Vec2], x2: &[Vec2], opts: &RansacOptions) -> Result<RansacReport<Mat3>, EstimatorError> {
+pub fn estimate_essential(
+    x1: &[Vec2],
+    x2: &[Vec2],
+    opts: &RansacOptions,
+) -> Result<RansacReport<Mat3>, EstimatorError> {
     check_pairs("essential matrix RANSAC", x1, x2, essential_5pt::SAMPLE_SIZE)?;
     ransac(&EssentialEstimator { x1, x2 }, opts)
 }
 
 /// LO-RANSAC fundamental matrix.
-pub fn estimate_fundamental(x1: &[Vec2], x2: &[Vec2], opts: &RansacOptions) -> Result<RansacReport<Mat3>, EstimatorError> {
+pub fn estimate_fundamental(
+    x1: &[Vec2],
+    x2: &[Vec2],
+    opts: &RansacOptions,
+) -> Result<RansacReport<Mat3>, EstimatorError> {
     check_pairs("fundamental matrix RANSAC", x1, x2, fundamental::SAMPLE_SIZE_7PT)?;
     ransac(&FundamentalEstimator { x1, x2 }, opts)
 }
 
 /// LO-RANSAC homography.
-pub fn estimate_homography(x1: &[Vec2], x2: &[Vec2], opts: &RansacOptions) -> Result<RansacReport<Mat3>, EstimatorError> {
+pub fn estimate_homography(
+    x1: &[Vec2],
+    x2: &[Vec2],
+    opts: &RansacOptions,
+) -> Result<RansacReport<Mat3>, EstimatorError> {
     check_pairs("homography RANSAC", x1, x2, homography::SAMPLE_SIZE)?;
     ransac(&HomographyEstimator { x1, x2 }, opts)
 }
@@ -316,7 +328,11 @@ pub struct RelativePoseReport {
 
 /// Relative pose from calibrated correspondences: LO-RANSAC 5-point,
 /// cheirality-based decomposition, optional refinement on the inliers.
-pub fn estimate_relative_pose(x1: &[Vec2], x2: &[Vec2], opts: &RelativePoseOptions) -> Result<RelativePoseReport, EstimatorError> {
+pub fn estimate_relative_pose(
+    x1: &[Vec2],
+    x2: &[Vec2],
+    opts: &RelativePoseOptions,
+) -> Result<RelativePoseReport, EstimatorError> {
     opts.validate()?;
     let rep = estimate_essential(x1, x2, &opts.ransac)?;
     let idx: Vec<usize> = (0..x1.len()).filter(|&i| rep.inlier_mask[i]).collect();
@@ -380,7 +396,8 @@ mod tests {
             &Rigid3::new(s.cam2_from_cam1.rotation, s.cam2_from_cam1.translation.normalize()),
             &SVector::<f64, 5>::new(0.01, -0.02, 0.01, 0.05, -0.03),
         );
-        let opts = RelativePoseRefineOptions { loss: RobustLoss::Trivial, max_iterations: 100, function_tolerance: 0.0 };
+        let opts =
+            RelativePoseRefineOptions { loss: RobustLoss::Trivial, max_iterations: 100, function_tolerance: 0.0 };
         let (p, cost) = refine_relative_pose(&start, &s.x1, &s.x2, &opts).unwrap();
         assert!(cost < 1e-20, "cost {cost}");
         assert!(rotation_error_deg(&p, &s.cam2_from_cam1) < 1e-6);
@@ -410,6 +427,9 @@ mod tests {
         let mut bad = p.clone();
         bad[3].y = f64::NAN;
         assert!(matches!(estimate_relative_pose(&bad, &p, &o), Err(EstimatorError::NonFinite { .. })));
-        assert!(matches!(estimate_fundamental(&bad, &p, &RansacOptions::default()), Err(EstimatorError::NonFinite { .. })));
+        assert!(matches!(
+            estimate_fundamental(&bad, &p, &RansacOptions::default()),
+            Err(EstimatorError::NonFinite { .. })
+        ));
     }
 }

@@ -32,10 +32,16 @@ impl TriangulationOptions {
     /// Checks the ranges.
     pub fn validate(&self) -> Result<(), EstimatorError> {
         if !(self.min_tri_angle_deg >= 0.0 && self.min_tri_angle_deg < 180.0) {
-            return Err(EstimatorError::InvalidOptions(format!("min_tri_angle_deg must lie in [0, 180), got {}", self.min_tri_angle_deg)));
+            return Err(EstimatorError::InvalidOptions(format!(
+                "min_tri_angle_deg must lie in [0, 180), got {}",
+                self.min_tri_angle_deg
+            )));
         }
         if !(self.max_reproj_error > 0.0) {
-            return Err(EstimatorError::InvalidOptions(format!("max_reproj_error must be positive, got {}", self.max_reproj_error)));
+            return Err(EstimatorError::InvalidOptions(format!(
+                "max_reproj_error must be positive, got {}",
+                self.max_reproj_error
+            )));
         }
         Ok(())
     }
@@ -188,7 +194,10 @@ pub fn triangulate_multiview(
 ) -> Result<TriangulatedPoint, TriangulationRejection> {
     opts.validate()?;
     if cams_from_world.len() != points.len() {
-        return Err(TriangulationRejection::LengthMismatch { poses: cams_from_world.len(), observations: points.len() });
+        return Err(TriangulationRejection::LengthMismatch {
+            poses: cams_from_world.len(),
+            observations: points.len(),
+        });
     }
     if points.len() < 2 {
         return Err(TriangulationRejection::TooFewViews(points.len()));
@@ -232,7 +241,12 @@ pub fn triangulate_multiview(
     if angle_deg < opts.min_tri_angle_deg {
         return Err(TriangulationRejection::SmallAngle { angle_deg });
     }
-    Ok(TriangulatedPoint { point: x, tri_angle_deg: angle_deg, max_reproj_error: max_err, mean_reproj_error: sum_err / points.len() as f64 })
+    Ok(TriangulatedPoint {
+        point: x,
+        tri_angle_deg: angle_deg,
+        max_reproj_error: max_err,
+        mean_reproj_error: sum_err / points.len() as f64,
+    })
 }
 
 /// Two-view convenience wrapper of [`triangulate_multiview`].
@@ -259,7 +273,8 @@ mod tests {
             .map(|_| {
                 // Camera about 5 units away, looking roughly at the point.
                 let r = random_rotation(&mut rng, 0.2);
-                let c = x - r.inverse() * Vec3::new(rng.uniform(-0.5, 0.5), rng.uniform(-0.5, 0.5), 5.0) + random_unit(&mut rng) * 0.01;
+                let c = x - r.inverse() * Vec3::new(rng.uniform(-0.5, 0.5), rng.uniform(-0.5, 0.5), 5.0)
+                    + random_unit(&mut rng) * 0.01;
                 Rigid3::new(r, -(r * c))
             })
             .collect();
@@ -291,7 +306,8 @@ mod tests {
         let (mut e_dlt, mut e_ref) = (0.0, 0.0);
         for seed in 0..50 {
             let (poses, x) = views(seed, 4);
-            let obs: Vec<Vec2> = poses.iter().map(|p| project(p, &x) + Vec2::new(rng.normal(), rng.normal()) * 2e-3).collect();
+            let obs: Vec<Vec2> =
+                poses.iter().map(|p| project(p, &x) + Vec2::new(rng.normal(), rng.normal()) * 2e-3).collect();
             let d = dlt(&poses, &obs).unwrap();
             let r = refine(&poses, &obs, d, 10);
             let c = |y: &Vec3| poses.iter().zip(&obs).map(|(p, u)| (project(p, y) - u).norm_squared()).sum::<f64>();
@@ -307,7 +323,10 @@ mod tests {
         let (poses, x) = views(1, 2);
         let obs: Vec<Vec2> = poses.iter().map(|p| project(p, &x)).collect();
         assert_eq!(triangulate_multiview(&poses[..1], &obs[..1], &o), Err(TriangulationRejection::TooFewViews(1)));
-        assert!(matches!(triangulate_multiview(&poses, &obs[..1], &o), Err(TriangulationRejection::LengthMismatch { .. })));
+        assert!(matches!(
+            triangulate_multiview(&poses, &obs[..1], &o),
+            Err(TriangulationRejection::LengthMismatch { .. })
+        ));
         let mut bad = obs.clone();
         bad[1].x = f64::NAN;
         assert_eq!(triangulate_multiview(&poses, &bad, &o), Err(TriangulationRejection::NonFinite(1)));
@@ -318,7 +337,10 @@ mod tests {
         // Small baseline (cameras 1 cm apart at 5 m): small angle.
         let near = Rigid3::new(poses[0].rotation, poses[0].translation + Vec3::new(0.01, 0.0, 0.0));
         let obs2 = [obs[0], project(&near, &x)];
-        assert!(matches!(triangulate_multiview(&[poses[0], near], &obs2, &o), Err(TriangulationRejection::SmallAngle { .. })));
+        assert!(matches!(
+            triangulate_multiview(&[poses[0], near], &obs2, &o),
+            Err(TriangulationRejection::SmallAngle { .. })
+        ));
         // Point behind the cameras.
         let behind = Vec3::new(0.0, 0.0, -5.0);
         let p0 = Rigid3::identity();

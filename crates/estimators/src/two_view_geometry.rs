@@ -4,8 +4,8 @@
 //! median triangulation angle. Pure rotation (panoramic) is detected when the
 //! homography explains the matches and the triangulation angles are tiny.
 
-use crate::error::{check_pairs, EstimatorError};
-use crate::essential_5pt::{pose_from_essential, RecoveredPose};
+use crate::error::{EstimatorError, check_pairs};
+use crate::essential_5pt::{RecoveredPose, pose_from_essential};
 use crate::homography::pose_from_homography;
 use crate::ransac::{RansacOptions, RansacReport};
 use crate::relative_pose::{estimate_essential, estimate_fundamental, estimate_homography};
@@ -53,7 +53,12 @@ pub struct TwoViewGeometryOptions {
 impl Default for TwoViewGeometryOptions {
     fn default() -> Self {
         Self {
-            ransac: RansacOptions { max_error: 8e-3, confidence: 0.999, max_trials: 10_000, ..RansacOptions::default() },
+            ransac: RansacOptions {
+                max_error: 8e-3,
+                confidence: 0.999,
+                max_trials: 10_000,
+                ..RansacOptions::default()
+            },
             min_num_inliers: 15,
             min_e_f_inlier_ratio: 0.95,
             max_h_inlier_ratio: 0.8,
@@ -138,7 +143,11 @@ fn masked(x: &[Vec2], mask: &[bool]) -> Vec<Vec2> {
 /// matches in normalised coordinates. Bad input (NaN, length mismatch,
 /// invalid options) is an error; too few or inconsistent matches give
 /// `config == Degenerate`.
-pub fn estimate_two_view_geometry(x1: &[Vec2], x2: &[Vec2], opts: &TwoViewGeometryOptions) -> Result<TwoViewGeometry, EstimatorError> {
+pub fn estimate_two_view_geometry(
+    x1: &[Vec2],
+    x2: &[Vec2],
+    opts: &TwoViewGeometryOptions,
+) -> Result<TwoViewGeometry, EstimatorError> {
     opts.validate()?;
     check_pairs("two-view geometry", x1, x2, 0)?;
     let n = x1.len();
@@ -171,7 +180,8 @@ pub fn estimate_two_view_geometry(x1: &[Vec2], x2: &[Vec2], opts: &TwoViewGeomet
     let ratio = |a: usize, b: usize| if b > 0 { a as f64 / b as f64 } else { f64::INFINITY };
 
     // Classification (COLMAP's order of tests).
-    let (config, mask) = if let Some(er) = e.as_ref().filter(|_| ne >= min && ratio(ne, nf) > opts.min_e_f_inlier_ratio) {
+    let (config, mask) = if let Some(er) = e.as_ref().filter(|_| ne >= min && ratio(ne, nf) > opts.min_e_f_inlier_ratio)
+    {
         if ratio(nh, ne) > opts.max_h_inlier_ratio {
             (TwoViewConfig::PlanarOrPanoramic, er.inlier_mask.clone())
         } else {
@@ -234,7 +244,10 @@ pub fn estimate_two_view_geometry(x1: &[Vec2], x2: &[Vec2], opts: &TwoViewGeomet
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::synthetic::{planar_scene, random_rotation, relative_scene, relative_scene_with_pose, rotation_error_deg, translation_dir_error_deg};
+    use crate::synthetic::{
+        planar_scene, random_rotation, relative_scene, relative_scene_with_pose, rotation_error_deg,
+        translation_dir_error_deg,
+    };
     use colslam_geometry::SplitMix64;
 
     const NOISE: f64 = 1.0 / 500.0;
@@ -291,7 +304,14 @@ mod tests {
             *p *= 1.5;
         }
         let g = estimate_two_view_geometry(&s.x1, &s.x2, &TwoViewGeometryOptions::default()).unwrap();
-        assert_eq!(g.config, TwoViewConfig::Uncalibrated, "E {} F {} H {}", g.num_inliers_e, g.num_inliers_f, g.num_inliers_h);
+        assert_eq!(
+            g.config,
+            TwoViewConfig::Uncalibrated,
+            "E {} F {} H {}",
+            g.num_inliers_e,
+            g.num_inliers_f,
+            g.num_inliers_h
+        );
         assert!(g.cam2_from_cam1.is_none());
         assert!(g.num_inliers >= 340);
     }
@@ -302,7 +322,10 @@ mod tests {
         let mut r = || Vec2::new(rng.uniform(-0.6, 0.6), rng.uniform(-0.6, 0.6));
         let x1: Vec<Vec2> = (0..200).map(|_| r()).collect();
         let x2: Vec<Vec2> = (0..200).map(|_| r()).collect();
-        let opts = TwoViewGeometryOptions { ransac: RansacOptions { max_error: 1e-3, ..TwoViewGeometryOptions::default().ransac }, ..Default::default() };
+        let opts = TwoViewGeometryOptions {
+            ransac: RansacOptions { max_error: 1e-3, ..TwoViewGeometryOptions::default().ransac },
+            ..Default::default()
+        };
         let g = estimate_two_view_geometry(&x1, &x2, &opts).unwrap();
         assert_eq!(g.config, TwoViewConfig::Degenerate);
     }

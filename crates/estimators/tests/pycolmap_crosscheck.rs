@@ -8,8 +8,8 @@ use colslam_estimators::synthetic::{
     translation_dir_error_deg,
 };
 use colslam_estimators::{
-    estimate_absolute_pose, estimate_relative_pose, estimate_two_view_geometry, AbsolutePoseOptions, RansacOptions,
-    RelativePoseOptions, TwoViewConfig, TwoViewGeometryOptions, Vec2, Vec3,
+    AbsolutePoseOptions, RansacOptions, RelativePoseOptions, TwoViewConfig, TwoViewGeometryOptions, Vec2, Vec3,
+    estimate_absolute_pose, estimate_relative_pose, estimate_two_view_geometry,
 };
 use colslam_geometry::{Rigid3, SplitMix64};
 use std::fmt::Write as _;
@@ -50,7 +50,11 @@ fn matches_pycolmap() {
         // COLMAP calls a noisy pure rotation PLANAR: it reports PANORAMIC
         // only when the homography decomposition has exactly zero
         // translation. We also look at the triangulation angles.
-        (relative_scene_with_pose(&mut rng, rot_only, 400, ONE_PIXEL, 0.2, (2.0, 8.0)), TwoViewConfig::Panoramic, "PLANAR"),
+        (
+            relative_scene_with_pose(&mut rng, rot_only, 400, ONE_PIXEL, 0.2, (2.0, 8.0)),
+            TwoViewConfig::Panoramic,
+            "PLANAR",
+        ),
     ];
 
     let mut cases = Vec::new();
@@ -58,7 +62,11 @@ fn matches_pycolmap() {
         cases.push(format!(r#"{{"kind":"relative","seed":{i},"x1":{},"x2":{}}}"#, pts2(&s.x1), pts2(&s.x2)));
     }
     for (i, s) in abs.iter().enumerate() {
-        cases.push(format!(r#"{{"kind":"absolute","seed":{i},"x1":{},"p3":{}}}"#, pts2(&s.points2d), pts3(&s.points3d)));
+        cases.push(format!(
+            r#"{{"kind":"absolute","seed":{i},"x1":{},"p3":{}}}"#,
+            pts2(&s.points2d),
+            pts3(&s.points3d)
+        ));
     }
     for (i, (s, _, _)) in two_view.iter().enumerate() {
         cases.push(format!(r#"{{"kind":"twoview","seed":{i},"x1":{},"x2":{}}}"#, pts2(&s.x1), pts2(&s.x2)));
@@ -76,24 +84,36 @@ fn matches_pycolmap() {
     // Relative pose: our error at most 1.5x COLMAP's plus a small margin.
     for (i, s) in rel.iter().enumerate() {
         let theirs = pose_of(&res[i]["pose"]).expect("pycolmap found no essential matrix");
-        let opts = RelativePoseOptions { ransac: RansacOptions { seed: i as u64, ..RelativePoseOptions::default().ransac }, ..Default::default() };
+        let opts = RelativePoseOptions {
+            ransac: RansacOptions { seed: i as u64, ..RelativePoseOptions::default().ransac },
+            ..Default::default()
+        };
         let ours = estimate_relative_pose(&s.x1, &s.x2, &opts).unwrap().cam2_from_cam1;
-        let (er_o, er_t) = (rotation_error_deg(&ours, &s.cam2_from_cam1), rotation_error_deg(&theirs, &s.cam2_from_cam1));
+        let (er_o, er_t) =
+            (rotation_error_deg(&ours, &s.cam2_from_cam1), rotation_error_deg(&theirs, &s.cam2_from_cam1));
         let et_o = translation_dir_error_deg(&ours.translation, &s.cam2_from_cam1.translation);
         let et_t = translation_dir_error_deg(&theirs.translation, &s.cam2_from_cam1.translation);
-        eprintln!("relative {i}: rotation ours {er_o:.4} colmap {er_t:.4} deg; translation ours {et_o:.4} colmap {et_t:.4} deg");
+        eprintln!(
+            "relative {i}: rotation ours {er_o:.4} colmap {er_t:.4} deg; translation ours {et_o:.4} colmap {et_t:.4} deg"
+        );
         assert!(er_o <= 1.5 * er_t + 0.02, "relative {i}: rotation {er_o} vs COLMAP {er_t}");
         assert!(et_o <= 1.5 * et_t + 0.2, "relative {i}: translation {et_o} vs COLMAP {et_t}");
     }
     // Absolute pose.
     for (i, s) in abs.iter().enumerate() {
         let theirs = pose_of(&res[rel.len() + i]["pose"]).expect("pycolmap found no absolute pose");
-        let opts = AbsolutePoseOptions { ransac: RansacOptions { seed: i as u64, ..AbsolutePoseOptions::default().ransac }, ..Default::default() };
+        let opts = AbsolutePoseOptions {
+            ransac: RansacOptions { seed: i as u64, ..AbsolutePoseOptions::default().ransac },
+            ..Default::default()
+        };
         let ours = estimate_absolute_pose(&s.points2d, &s.points3d, &opts).unwrap().cam_from_world;
-        let (er_o, er_t) = (rotation_error_deg(&ours, &s.cam_from_world), rotation_error_deg(&theirs, &s.cam_from_world));
+        let (er_o, er_t) =
+            (rotation_error_deg(&ours, &s.cam_from_world), rotation_error_deg(&theirs, &s.cam_from_world));
         let ep_o = (ours.center() - s.cam_from_world.center()).norm();
         let ep_t = (theirs.center() - s.cam_from_world.center()).norm();
-        eprintln!("absolute {i}: rotation ours {er_o:.4} colmap {er_t:.4} deg; position ours {ep_o:.5} colmap {ep_t:.5}");
+        eprintln!(
+            "absolute {i}: rotation ours {er_o:.4} colmap {er_t:.4} deg; position ours {ep_o:.5} colmap {ep_t:.5}"
+        );
         assert!(er_o <= 1.5 * er_t + 0.01, "absolute {i}: rotation {er_o} vs COLMAP {er_t}");
         assert!(ep_o <= 1.5 * ep_t + 1e-3, "absolute {i}: position {ep_o} vs COLMAP {ep_t}");
     }
@@ -101,7 +121,10 @@ fn matches_pycolmap() {
     for (i, (s, expected, colmap_name)) in two_view.iter().enumerate() {
         let r = &res[rel.len() + abs.len() + i];
         let g = estimate_two_view_geometry(&s.x1, &s.x2, &TwoViewGeometryOptions::default()).unwrap();
-        eprintln!("two-view {i}: ours {:?} ({} inliers), colmap {} ({} inliers)", g.config, g.num_inliers, r["config"], r["num_inliers"]);
+        eprintln!(
+            "two-view {i}: ours {:?} ({} inliers), colmap {} ({} inliers)",
+            g.config, g.num_inliers, r["config"], r["num_inliers"]
+        );
         assert_eq!(g.config, *expected);
         assert_eq!(r["config"].as_str(), Some(*colmap_name), "COLMAP classified case {i} differently");
     }

@@ -74,11 +74,8 @@ fn load(dir: &Path) -> Vec<Frame> {
             let mut it = l.split_whitespace();
             let stamp: f64 = it.next().unwrap().parse().unwrap();
             let rel = it.next().unwrap();
-            let (gap, pose) = gt
-                .iter()
-                .map(|(s, p)| ((s - stamp).abs(), *p))
-                .min_by(|a, b| a.0.total_cmp(&b.0))
-                .unwrap();
+            let (gap, pose) =
+                gt.iter().map(|(s, p)| ((s - stamp).abs(), *p)).min_by(|a, b| a.0.total_cmp(&b.0)).unwrap();
             assert!(gap < 0.02, "no ground truth near {stamp}");
             Frame { path: dir.join(rel), world_from_cam: pose }
         })
@@ -226,11 +223,7 @@ fn real_tum_pairs_match_pycolmap() {
         let (fj, nj) = extract(j);
         let corr = correspondences(&nn, &fi, &fj, &ni, &nj);
         let gt = frames[j].world_from_cam.inverse() * frames[i].world_from_cam;
-        rel_cases.push(RelCase {
-            x1: corr.iter().map(|c| c.1).collect(),
-            x2: corr.iter().map(|c| c.2).collect(),
-            gt,
-        });
+        rel_cases.push(RelCase { x1: corr.iter().map(|c| c.1).collect(), x2: corr.iter().map(|c| c.2).collect(), gt });
         // 2D-3D for the middle frame: points triangulated from (i, j) with
         // the ground-truth poses, observed in k through matches to frame i.
         let (ci, cj) = (frames[i].world_from_cam.inverse(), frames[j].world_from_cam.inverse());
@@ -295,7 +288,10 @@ fn real_tum_pairs_match_pycolmap() {
         );
     }
     let (mro, mrt, mdo, mdt) = (median(rot_o), median(rot_t), median(dir_o), median(dir_t));
-    eprintln!("relative, median over {} pairs: rotation ours {mro:.3} colmap {mrt:.3} deg; translation dir ours {mdo:.2} colmap {mdt:.2} deg", rel_cases.len());
+    eprintln!(
+        "relative, median over {} pairs: rotation ours {mro:.3} colmap {mrt:.3} deg; translation dir ours {mdo:.2} colmap {mdt:.2} deg",
+        rel_cases.len()
+    );
 
     let (mut arot_o, mut arot_t, mut pos_o, mut pos_t) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
     for (s, c) in abs_cases.iter().enumerate() {
@@ -317,7 +313,10 @@ fn real_tum_pairs_match_pycolmap() {
         );
     }
     let (aro, art, po, pt) = (median(arot_o), median(arot_t), median(pos_o), median(pos_t));
-    eprintln!("absolute, median over {} frames: rotation ours {aro:.3} colmap {art:.3} deg; position ours {po:.4} colmap {pt:.4} m", abs_cases.len());
+    eprintln!(
+        "absolute, median over {} frames: rotation ours {aro:.3} colmap {art:.3} deg; position ours {po:.4} colmap {pt:.4} m",
+        abs_cases.len()
+    );
 
     assert!(mro <= FACTOR * mrt + ROT_SLACK_DEG, "relative rotation: ours {mro} vs COLMAP {mrt} deg");
     assert!(mdo <= FACTOR * mdt + TDIR_SLACK_DEG, "relative translation direction: ours {mdo} vs COLMAP {mdt} deg");

@@ -4,10 +4,12 @@
 //! `cargo test -p colslam-estimators --release -- --ignored`.
 
 use colslam_estimators::ransac::required_trials;
-use colslam_estimators::synthetic::{absolute_scene, relative_scene_wide, rotation_error_deg, translation_dir_error_deg};
+use colslam_estimators::synthetic::{
+    absolute_scene, relative_scene_wide, rotation_error_deg, translation_dir_error_deg,
+};
 use colslam_estimators::{
-    estimate_absolute_pose, estimate_relative_pose, ransac, AbsolutePoseOptions, Estimator, RansacOptions,
-    RelativePoseOptions,
+    AbsolutePoseOptions, Estimator, RansacOptions, RelativePoseOptions, estimate_absolute_pose, estimate_relative_pose,
+    ransac,
 };
 use colslam_geometry::SplitMix64;
 
@@ -29,7 +31,10 @@ fn check_relative(seeds: std::ops::Range<u64>) -> (Vec<f64>, f64) {
     let mut worst_t = 0.0f64;
     for seed in seeds {
         let s = relative_scene_wide(seed, 1000, ONE_PIXEL, 0.5);
-        let opts = RelativePoseOptions { ransac: RansacOptions { seed, ..RelativePoseOptions::default().ransac }, ..Default::default() };
+        let opts = RelativePoseOptions {
+            ransac: RansacOptions { seed, ..RelativePoseOptions::default().ransac },
+            ..Default::default()
+        };
         let r = estimate_relative_pose(&s.x1, &s.x2, &opts).unwrap();
         let er = rotation_error_deg(&r.cam2_from_cam1, &s.cam2_from_cam1);
         let et = translation_dir_error_deg(&r.cam2_from_cam1.translation, &s.cam2_from_cam1.translation);
@@ -48,7 +53,10 @@ fn check_absolute(seeds: std::ops::Range<u64>) -> (f64, f64) {
     let (mut worst_r, mut worst_p) = (0.0f64, 0.0f64);
     for seed in seeds {
         let s = absolute_scene(seed, 1000, ONE_PIXEL, 0.5);
-        let opts = AbsolutePoseOptions { ransac: RansacOptions { seed, ..AbsolutePoseOptions::default().ransac }, ..Default::default() };
+        let opts = AbsolutePoseOptions {
+            ransac: RansacOptions { seed, ..AbsolutePoseOptions::default().ransac },
+            ..Default::default()
+        };
         let r = estimate_absolute_pose(&s.points2d, &s.points3d, &opts).unwrap();
         let er = rotation_error_deg(&r.cam_from_world, &s.cam_from_world);
         // Points are 2-8 units deep: 2 cm is ~0.4 % of the mean depth.
@@ -200,7 +208,10 @@ fn huge(big: f64) {
     let _ = estimate_relative_pose(&x1, &x2, &RelativePoseOptions { ransac: quick.clone(), ..Default::default() });
     let _ = estimate_absolute_pose(&x1, &p3, &AbsolutePoseOptions { ransac: quick.clone(), ..Default::default() });
     let _ = estimate_two_view_geometry(&x1, &x2, &TwoViewGeometryOptions { ransac: quick, ..Default::default() });
-    let poses = [colslam_geometry::Rigid3::identity(), colslam_geometry::Rigid3::new(colslam_geometry::Quat::identity(), Vec3::new(big, 0.0, 0.0))];
+    let poses = [
+        colslam_geometry::Rigid3::identity(),
+        colslam_geometry::Rigid3::new(colslam_geometry::Quat::identity(), Vec3::new(big, 0.0, 0.0)),
+    ];
     let _ = triangulate_multiview(&poses, &x1[..2], &TriangulationOptions::default());
 }
 

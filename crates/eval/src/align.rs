@@ -108,11 +108,7 @@ pub fn align(
     if !(sim.scale.is_finite() && sim.scale > 0.0) {
         return Err(AlignError::Degenerate(format!("alignment scale {} is not positive", sim.scale)));
     }
-    let transform = if mode == Alignment::Scale {
-        Sim3 { scale: sim.scale, ..Sim3::identity() }
-    } else {
-        sim
-    };
+    let transform = if mode == Alignment::Scale { Sim3 { scale: sim.scale, ..Sim3::identity() } } else { sim };
     Ok(AlignResult { aligned: transform_trajectory(estimate, &transform), transform })
 }
 

@@ -15,8 +15,8 @@
 //!   stamp wins. Otherwise a linear scan takes the first minimum.
 //! * A stamp of the searched trajectory may be matched more than once.
 
-use crate::trajectory::Trajectory;
 use crate::EvalError;
+use crate::trajectory::Trajectory;
 
 /// Options of [`associate`].
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -41,10 +41,7 @@ impl AssociateOptions {
     /// Checks that `max_diff` is finite and non-negative and `offset` finite.
     pub fn validate(&self) -> Result<(), EvalError> {
         if !(self.max_diff.is_finite() && self.max_diff >= 0.0) {
-            return Err(EvalError::InvalidOptions(format!(
-                "max_diff must be finite and >= 0, got {}",
-                self.max_diff
-            )));
+            return Err(EvalError::InvalidOptions(format!("max_diff must be finite and >= 0, got {}", self.max_diff)));
         }
         if !self.offset.is_finite() {
             return Err(EvalError::InvalidOptions(format!("offset must be finite, got {}", self.offset)));

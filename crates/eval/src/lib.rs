@@ -200,7 +200,11 @@ impl std::fmt::Display for EvalReport {
         writeln!(f, "matched:   {} pairs, alignment {} (scale {:.6})", self.matched, self.align, self.scale)?;
         writeln!(f, "{:<22}{:>12}{:>12}{:>12}{:>12}{:>12}{:>12}", "", "rmse", "mean", "median", "std", "min", "max")?;
         let row = |f: &mut std::fmt::Formatter<'_>, name: &str, v: [f64; 6]| {
-            writeln!(f, "{name:<22}{:>12.6}{:>12.6}{:>12.6}{:>12.6}{:>12.6}{:>12.6}", v[0], v[1], v[2], v[3], v[4], v[5])
+            writeln!(
+                f,
+                "{name:<22}{:>12.6}{:>12.6}{:>12.6}{:>12.6}{:>12.6}{:>12.6}",
+                v[0], v[1], v[2], v[3], v[4], v[5]
+            )
         };
         row(f, "ATE [m]", [self.ate_rmse, self.ate_mean, self.ate_median, self.ate_std, self.ate_min, self.ate_max])?;
         row(
@@ -317,7 +321,20 @@ pub fn evaluate_named(
         rpe_rot_errors_deg: rpe_r,
         transform,
     };
-    Ok(report_from(gt_name, est_name, gt.len(), est.len(), matched, opts, &ate, &ate_r, &rt, &rr, [q.w, q.i, q.j, q.k], detail))
+    Ok(report_from(
+        gt_name,
+        est_name,
+        gt.len(),
+        est.len(),
+        matched,
+        opts,
+        &ate,
+        &ate_r,
+        &rt,
+        &rr,
+        [q.w, q.i, q.j, q.k],
+        detail,
+    ))
 }
 
 #[allow(clippy::too_many_arguments)] // a private constructor of a flat struct

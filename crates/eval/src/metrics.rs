@@ -170,10 +170,8 @@ mod tests {
     fn ape_by_hand() {
         let q = vec![Rigid3::identity(), Rigid3::new(Quat::identity(), Vec3::new(1.0, 0.0, 0.0))];
         let rot = Quat::from_axis_angle(&Vec3::z_axis(), 0.1);
-        let p = vec![
-            Rigid3::new(Quat::identity(), Vec3::new(0.0, 3.0, 4.0)),
-            Rigid3::new(rot, Vec3::new(1.0, 0.0, 0.0)),
-        ];
+        let p =
+            vec![Rigid3::new(Quat::identity(), Vec3::new(0.0, 3.0, 4.0)), Rigid3::new(rot, Vec3::new(1.0, 0.0, 0.0))];
         assert_eq!(ape_errors(&q, &p, PoseRelation::TranslationPart), vec![5.0, 0.0]);
         let ang = ape_errors(&q, &p, PoseRelation::RotationAngleDeg);
         assert_eq!(ang[0], 0.0);

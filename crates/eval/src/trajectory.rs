@@ -66,9 +66,8 @@ impl Trajectory {
         }
         for (i, (t, p)) in self.stamps.iter().zip(&self.poses).enumerate() {
             let q = p.rotation.quaternion();
-            let finite = t.is_finite()
-                && p.translation.iter().all(|v| v.is_finite())
-                && q.coords.iter().all(|v| v.is_finite());
+            let finite =
+                t.is_finite() && p.translation.iter().all(|v| v.is_finite()) && q.coords.iter().all(|v| v.is_finite());
             if !finite {
                 return Err(invalid(format!("pose {i} (stamp {t}) holds a non-finite value")));
             }
@@ -99,7 +98,8 @@ impl Trajectory {
     /// Reads a TUM trajectory file. Errors name the file, the 1-based line
     /// and the problem.
     pub fn read_tum(path: &Path) -> Result<Trajectory, EvalError> {
-        let text = std::fs::read_to_string(path).map_err(|source| EvalError::Io { path: path.to_path_buf(), source })?;
+        let text =
+            std::fs::read_to_string(path).map_err(|source| EvalError::Io { path: path.to_path_buf(), source })?;
         Self::parse_tum(&text, path)
     }
 
@@ -138,11 +138,8 @@ impl Trajectory {
             if norm <= MIN_QUAT_NORM {
                 return Err(err(format!("quaternion ({qx} {qy} {qz} {qw}) has zero norm")));
             }
-            let rotation = if (norm - 1.0).abs() <= UNIT_NORM_TOL {
-                Quat::new_unchecked(q)
-            } else {
-                Quat::new_normalize(q)
-            };
+            let rotation =
+                if (norm - 1.0).abs() <= UNIT_NORM_TOL { Quat::new_unchecked(q) } else { Quat::new_normalize(q) };
             traj.stamps.push(t);
             traj.poses.push(Rigid3::new(rotation, Vec3::new(tx, ty, tz)));
         }

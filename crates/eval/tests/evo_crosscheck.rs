@@ -87,7 +87,8 @@ fn build_cases(gt_path: &Path, dir: &Path) -> Vec<Case> {
     add("a_noise_se3", a, with(Alignment::Se3), None);
 
     // (b) every 2nd pose, scaled by 0.3, rotated and translated, light noise.
-    let s = Sim3 { scale: 0.3, rotation: Quat::from_euler_angles(0.7, -0.4, 2.2), translation: Vec3::new(4.0, -1.5, 0.8) };
+    let s =
+        Sim3 { scale: 0.3, rotation: Quat::from_euler_angles(0.7, -0.4, 2.2), translation: Vec3::new(4.0, -1.5, 0.8) };
     let idx: Vec<usize> = (0..gt.len()).step_by(2).collect();
     let sub = gt.select(&idx);
     let b = Trajectory::new(
@@ -117,7 +118,10 @@ fn build_cases(gt_path: &Path, dir: &Path) -> Vec<Case> {
         .filter(|&i| rng.next_f64() > 0.25 && !(gt.stamps[i] - t0 > 8.0 && gt.stamps[i] - t0 < 10.0))
         .collect();
     let sub = gt.select(&idx);
-    let d = Trajectory::new(sub.stamps.clone(), sub.poses.iter().map(|p| noisy(p, &mut rng, 0.008, 0.4f64.to_radians())).collect());
+    let d = Trajectory::new(
+        sub.stamps.clone(),
+        sub.poses.iter().map(|p| noisy(p, &mut rng, 0.008, 0.4f64.to_radians())).collect(),
+    );
     add("d_missing", d.clone(), with(Alignment::Sim3), None);
     // The same aligned on the first 100 pairs only, RPE 5 frames apart.
     add("d_n_to_align_100", d, EvalOptions { n_to_align: Some(100), rpe_delta: 5, ..EvalOptions::default() }, None);
@@ -182,7 +186,8 @@ fn check_stats(case: &str, what: &str, evo: &serde_json::Value, ours: [f64; 7]) 
 }
 
 fn check_errors(case: &str, what: &str, evo: &serde_json::Value, ours: &[f64]) {
-    let theirs: Vec<f64> = evo["errors"].as_array().expect("errors").iter().map(|v| v.as_f64().unwrap_or(f64::NAN)).collect();
+    let theirs: Vec<f64> =
+        evo["errors"].as_array().expect("errors").iter().map(|v| v.as_f64().unwrap_or(f64::NAN)).collect();
     assert_eq!(ours.len(), theirs.len(), "{case}: {what} count");
     for (i, (a, b)) in ours.iter().zip(&theirs).enumerate() {
         assert!((a - b).abs() <= TOL, "{case}: {what}[{i}] ours {a} evo {b}");
@@ -206,7 +211,15 @@ fn compare(case: &Case, r: &EvalReport, evo: &serde_json::Value) {
         n,
         "rpe_trans",
         rpe,
-        [r.rpe_trans_rmse, r.rpe_trans_mean, r.rpe_trans_median, r.rpe_trans_std, r.rpe_trans_min, r.rpe_trans_max, r.rpe_trans_sse],
+        [
+            r.rpe_trans_rmse,
+            r.rpe_trans_mean,
+            r.rpe_trans_median,
+            r.rpe_trans_std,
+            r.rpe_trans_min,
+            r.rpe_trans_max,
+            r.rpe_trans_sse,
+        ],
     );
     check_errors(n, "rpe_trans", rpe, &r.detail.rpe_trans_errors);
     let rot = &evo["rpe_rot"];

@@ -28,7 +28,10 @@ fn perturbed(gt: &Trajectory, seed: u64, sigma: f64, s: &Sim3) -> Trajectory {
         gt.poses
             .iter()
             .map(|p| {
-                let noisy = Rigid3::new(p.rotation, p.translation + Vec3::new(rng.normal(), rng.normal(), rng.normal()) * sigma);
+                let noisy = Rigid3::new(
+                    p.rotation,
+                    p.translation + Vec3::new(rng.normal(), rng.normal(), rng.normal()) * sigma,
+                );
                 s.transform_world_from_cam(&noisy)
             })
             .collect(),
@@ -50,7 +53,8 @@ fn count_color(img: &Image, x0: usize, x1: usize, color: [u8; 3]) -> usize {
 #[test]
 fn exact_sim3_estimate_has_zero_error() {
     let gt = figure_eight();
-    let s = Sim3 { scale: 0.3, rotation: Quat::from_euler_angles(0.3, 0.2, -1.0), translation: Vec3::new(1.0, 2.0, 3.0) };
+    let s =
+        Sim3 { scale: 0.3, rotation: Quat::from_euler_angles(0.3, 0.2, -1.0), translation: Vec3::new(1.0, 2.0, 3.0) };
     let est = perturbed(&gt, 1, 0.0, &s);
     let r = evaluate(&gt, &est, &EvalOptions::default()).unwrap();
     assert_eq!(r.matched, 300);
@@ -75,7 +79,22 @@ fn json_report_has_flat_fields_and_no_detail() {
     let est = perturbed(&gt, 2, 0.01, &Sim3::identity());
     let r = evaluate(&gt, &est, &EvalOptions::default()).unwrap();
     let v = serde_json::to_value(&r).unwrap();
-    for key in ["ate_rmse", "ate_mean", "ate_median", "ate_max", "ate_min", "ate_std", "ate_sse", "scale", "matched", "rpe_trans_rmse", "rpe_trans_mean", "rpe_trans_median", "rpe_trans_max", "rpe_rot_rmse_deg"] {
+    for key in [
+        "ate_rmse",
+        "ate_mean",
+        "ate_median",
+        "ate_max",
+        "ate_min",
+        "ate_std",
+        "ate_sse",
+        "scale",
+        "matched",
+        "rpe_trans_rmse",
+        "rpe_trans_mean",
+        "rpe_trans_median",
+        "rpe_trans_max",
+        "rpe_rot_rmse_deg",
+    ] {
         assert!(v.get(key).is_some_and(|x| x.is_number()), "missing {key}: {v}");
     }
     assert_eq!(v["align"], "sim3");
@@ -175,7 +194,8 @@ fn plot_of_dataset_ground_truth() {
     let Some(data) = colslam_testutil::dataset("tum_fr1_rpy_sub") else { return };
     let gt = Trajectory::read_tum(&data.join("groundtruth.txt")).unwrap();
     let idx: Vec<usize> = (0..gt.len()).step_by(7).collect();
-    let s = Sim3 { scale: 0.5, rotation: Quat::from_euler_angles(0.0, 0.0, 1.0), translation: Vec3::new(0.1, 0.0, 0.0) };
+    let s =
+        Sim3 { scale: 0.5, rotation: Quat::from_euler_angles(0.0, 0.0, 1.0), translation: Vec3::new(0.1, 0.0, 0.0) };
     let est = perturbed(&gt.select(&idx), 4, 0.01, &s);
     let r = evaluate(&gt, &est, &EvalOptions::default()).unwrap();
     let dir = tempfile::tempdir().unwrap();

@@ -36,7 +36,13 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     files.sort();
     files.truncate(n);
     let frames: Vec<Image> = files.iter().map(|f| Image::read(f).map(|i| i.to_gray())).collect::<Result<_, _>>()?;
-    println!("{} frames {}x{}, rayon threads {}", frames.len(), frames[0].width(), frames[0].height(), rayon::current_num_threads());
+    println!(
+        "{} frames {}x{}, rayon threads {}",
+        frames.len(),
+        frames[0].width(),
+        frames[0].height(),
+        rayon::current_num_threads()
+    );
     if std::env::var_os("ORB_REPORT").is_some() {
         let ex = OrbExtractor::new(OrbOptions::default())?;
         let (_, rep) = ex.extract_with_report(&frames[0])?;

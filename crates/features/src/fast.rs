@@ -161,7 +161,13 @@ impl FastMap {
     /// As [`FastMap::detect`], testing only the columns `x` for which
     /// `keep(x)` holds (the cheap, vectorised pre-test still runs on whole
     /// rows, which is faster than many short rows).
-    pub fn detect_where(&mut self, plane: &Plane, rect: (usize, usize, usize, usize), t: u8, keep: impl Fn(usize) -> bool) {
+    pub fn detect_where(
+        &mut self,
+        plane: &Plane,
+        rect: (usize, usize, usize, usize),
+        t: u8,
+        keep: impl Fn(usize) -> bool,
+    ) {
         let (x0, x1, y0, y1) = rect;
         let (w, h) = (plane.width, plane.height);
         let r = FAST_RADIUS;

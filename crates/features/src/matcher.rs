@@ -500,7 +500,9 @@ impl NnMatcher {
             });
         }
         let (Descriptors::Binary(qd), Descriptors::Binary(td)) = (&query.descriptors, &train.descriptors) else {
-            return Err(FeatureError::DescriptorMismatch("guided matching needs binary descriptors on both sides".into()));
+            return Err(FeatureError::DescriptorMismatch(
+                "guided matching needs binary descriptors on both sides".into(),
+            ));
         };
         let grid = Grid::new(&train.keypoints, radius);
         let r2 = radius * radius;
@@ -767,10 +769,12 @@ mod tests {
         // Two train rows equally close to the query: the ratio test rejects.
         let q = [[0u64; 4]];
         let t = [[0b11, 0, 0, 0], [0b1100, 0, 0, 0], [u64::MAX; 4]];
-        let plain = NnMatcher::new(NnMatcherOptions { cross_check: false, max_ratio: 1.0, ..Default::default() }).unwrap();
+        let plain =
+            NnMatcher::new(NnMatcherOptions { cross_check: false, max_ratio: 1.0, ..Default::default() }).unwrap();
         let m = plain.match_binary(&q, &t);
         assert_eq!(m, vec![Match { query: 0, train: 0, distance: 2.0 }]); // tie -> lowest index
-        let ratio = NnMatcher::new(NnMatcherOptions { cross_check: false, max_ratio: 0.8, ..Default::default() }).unwrap();
+        let ratio =
+            NnMatcher::new(NnMatcherOptions { cross_check: false, max_ratio: 0.8, ..Default::default() }).unwrap();
         assert!(ratio.match_binary(&q, &t).is_empty());
         // Max distance.
         let strict = NnMatcher::new(NnMatcherOptions { max_hamming: 1, max_ratio: 1.0, ..Default::default() }).unwrap();
@@ -822,7 +826,8 @@ mod tests {
         ));
         assert!(m.match_guided(&query, &train, &pred, 0.0).is_err());
         assert!(m.match_guided(&query, &train, &pred, f32::NAN).is_err());
-        let float = Features { keypoints: vec![kp(0.0, 0.0)], descriptors: Descriptors::Float { dim: 2, data: vec![0.0; 2] } };
+        let float =
+            Features { keypoints: vec![kp(0.0, 0.0)], descriptors: Descriptors::Float { dim: 2, data: vec![0.0; 2] } };
         assert!(m.match_guided(&float, &float, &[None], 4.0).is_err());
     }
 
@@ -855,7 +860,8 @@ mod tests {
         assert_eq!(got, vec![Match { query: 0, train: 1, distance: 1.0 }, Match { query: 1, train: 0, distance: 1.0 }]);
         let bin = Features { keypoints: vec![kp(0.0, 0.0)], descriptors: Descriptors::Binary(vec![[0; 4]]) };
         assert!(matches!(m.match_features(&a, &bin), Err(FeatureError::DescriptorMismatch(_))));
-        let c = Features { keypoints: vec![kp(0.0, 0.0)], descriptors: Descriptors::Float { dim: 3, data: vec![0.0; 3] } };
+        let c =
+            Features { keypoints: vec![kp(0.0, 0.0)], descriptors: Descriptors::Float { dim: 3, data: vec![0.0; 3] } };
         assert!(m.match_features(&a, &c).is_err());
         // Inconsistent: 2 keypoints, 1 descriptor.
         let bad = Features { keypoints: vec![kp(0.0, 0.0); 2], descriptors: Descriptors::Binary(vec![[0; 4]]) };

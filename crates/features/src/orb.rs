@@ -306,8 +306,7 @@ impl OrbExtractor {
         sx: f32,
         sy: f32,
     ) -> (Vec<Keypoint>, Vec<[u64; 4]>, OrbLevelReport) {
-        let mut report =
-            OrbLevelReport { width: plane.width, height: plane.height, quota, ..Default::default() };
+        let mut report = OrbLevelReport { width: plane.width, height: plane.height, quota, ..Default::default() };
         let e = self.opts.edge_threshold;
         if quota == 0 || plane.width <= 2 * e || plane.height <= 2 * e {
             return (Vec::new(), Vec::new(), report);
@@ -627,8 +626,9 @@ fn distribute_quadtree(cands: &[Candidate], area: (f32, f32, f32, f32), target: 
                 .max_by(|a, b| a.0.response.total_cmp(&b.0.response).then(b.1.cmp(&a.1)))
         })
         .collect();
-    let weaker_first =
-        |a: &(Candidate, u32, usize), b: &(Candidate, u32, usize)| a.0.response.total_cmp(&b.0.response).then(b.1.cmp(&a.1));
+    let weaker_first = |a: &(Candidate, u32, usize), b: &(Candidate, u32, usize)| {
+        a.0.response.total_cmp(&b.0.response).then(b.1.cmp(&a.1))
+    };
     // The last split may overshoot the target by up to 3 nodes: drop the
     // weakest of its children, which sit in the densest region, so the
     // spread elsewhere is kept (ORB-SLAM keeps the overshoot instead).

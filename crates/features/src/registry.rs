@@ -42,7 +42,9 @@ pub fn extractor_by_name(name: &str, opts: &ExtractorOptions) -> Result<Box<dyn 
 pub fn matcher_by_name(name: &str, opts: &MatcherOptions) -> Result<Box<dyn Matcher>, FeatureError> {
     match name.to_ascii_lowercase().as_str() {
         "nn" => Ok(Box::new(NnMatcher::new(opts.nn.clone())?)),
-        _ => Err(FeatureError::UnknownName { kind: "matcher", name: name.to_string(), known: MATCHER_NAMES.join(", ") }),
+        _ => {
+            Err(FeatureError::UnknownName { kind: "matcher", name: name.to_string(), known: MATCHER_NAMES.join(", ") })
+        }
     }
 }
 

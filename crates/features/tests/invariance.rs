@@ -49,7 +49,12 @@ fn check(name: &str, img: &Image, cases: &[(f64, f64)]) {
     for &(angle, scale) in cases {
         let o = evaluate(img, angle, scale);
         let share = o.correct as f64 / o.matches.max(1) as f64;
-        eprintln!("{name}: rotation {angle} deg, scale {scale}: {} / {} correct ({:.1} %)", o.correct, o.matches, 100.0 * share);
+        eprintln!(
+            "{name}: rotation {angle} deg, scale {scale}: {} / {} correct ({:.1} %)",
+            o.correct,
+            o.matches,
+            100.0 * share
+        );
         if o.matches < MIN_MATCHES || share < MIN_CORRECT {
             failures.push(format!("rotation {angle}, scale {scale}: {} / {} correct", o.correct, o.matches));
         }
@@ -78,7 +83,8 @@ fn invariance_on_tum_frame() {
 fn not_worse_than_opencv_orb() {
     let Some(dir) = colslam_testutil::dataset("tum_fr1_rpy_sub") else { return };
     let Some(py) = colslam_testutil::peer_python(&["cv2", "numpy"]) else { return };
-    let mut files: Vec<_> = std::fs::read_dir(dir.join("rgb")).unwrap().filter_map(|e| e.ok().map(|e| e.path())).collect();
+    let mut files: Vec<_> =
+        std::fs::read_dir(dir.join("rgb")).unwrap().filter_map(|e| e.ok().map(|e| e.path())).collect();
     files.sort();
     let path = files[0].to_str().unwrap().to_string();
     let img = Image::read(&files[0]).unwrap().to_gray();

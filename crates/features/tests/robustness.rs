@@ -113,7 +113,8 @@ fn registry_and_flow_on_real_features() {
     for y in 0..480 {
         for x in 0..640 {
             let (sx, sy) = (x as i64 - 12, y as i64 + 5);
-            let v = if (0..640).contains(&sx) && (0..480).contains(&sy) { img.get(sx as usize, sy as usize, 0) } else { 0 };
+            let v =
+                if (0..640).contains(&sx) && (0..480).contains(&sy) { img.get(sx as usize, sy as usize, 0) } else { 0 };
             shifted.set(x, y, 0, v);
         }
     }

@@ -12,7 +12,7 @@ pub mod umeyama;
 pub use nalgebra;
 pub use random::SplitMix64;
 pub use rigid::{Rigid3, Sim3};
-pub use umeyama::{umeyama, UmeyamaError};
+pub use umeyama::{UmeyamaError, umeyama};
 
 /// 3-vector of f64.
 pub type Vec3 = nalgebra::Vector3<f64>;

@@ -187,7 +187,11 @@ mod tests {
 
     #[test]
     fn sim3_inverse() {
-        let s = Sim3 { scale: 2.5, rotation: Quat::from_euler_angles(0.1, 0.2, 0.3), translation: Vec3::new(1.0, 2.0, 3.0) };
+        let s = Sim3 {
+            scale: 2.5,
+            rotation: Quat::from_euler_angles(0.1, 0.2, 0.3),
+            translation: Vec3::new(1.0, 2.0, 3.0),
+        };
         let p = Vec3::new(-1.0, 0.5, 4.0);
         assert!((s.inverse().transform_point(&s.transform_point(&p)) - p).norm() < 1e-12);
     }

@@ -61,11 +61,7 @@ pub fn umeyama(src: &[Vec3], dst: &[Vec3], with_scale: bool) -> Result<Sim3, Ume
         s_diag[2] = -1.0;
     }
     let r = u * Mat3::from_diagonal(&s_diag) * v_t;
-    let scale = if with_scale {
-        svd.singular_values.dot(&s_diag) / var_src
-    } else {
-        1.0
-    };
+    let scale = if with_scale { svd.singular_values.dot(&s_diag) / var_src } else { 1.0 };
     let t = mean_dst - scale * (r * mean_src);
     let rot = nalgebra::Rotation3::from_matrix_unchecked(r);
     Ok(Sim3 { scale, rotation: Quat::from_rotation_matrix(&rot), translation: t })

@@ -159,8 +159,7 @@ impl Image {
         let derr = |reason: String| ImageError::Decode { path: path.to_path_buf(), reason };
         if bytes.starts_with(&[0x89, b'P', b'N', b'G']) {
             let mut dec = zune_png::PngDecoder::new(zune_png::zune_core::bytestream::ZCursor::new(bytes));
-            let opts = zune_png::zune_core::options::DecoderOptions::default()
-                .png_set_strip_to_8bit(true);
+            let opts = zune_png::zune_core::options::DecoderOptions::default().png_set_strip_to_8bit(true);
             dec.set_options(opts);
             let px = dec.decode_raw().map_err(|e| derr(format!("{e:?}")))?;
             let (w, h) = dec.dimensions().ok_or_else(|| derr("no dimensions".into()))?;

@@ -91,7 +91,10 @@ pub fn detect_layout(path: &Path) -> Result<Layout, SourceError> {
             l @ Layout::Kitti { .. } => Ok(l),
             _ => Err(SourceError::Layout {
                 path: path.to_path_buf(),
-                reason: format!("a KITTI times.txt needs an {} or {} folder beside it", KITTI_IMAGE_DIRS[0], KITTI_IMAGE_DIRS[1]),
+                reason: format!(
+                    "a KITTI times.txt needs an {} or {} folder beside it",
+                    KITTI_IMAGE_DIRS[0], KITTI_IMAGE_DIRS[1]
+                ),
             }),
         };
     }

@@ -13,7 +13,9 @@ pub enum SourceError {
         path: PathBuf,
     },
     /// A folder holds no usable images.
-    #[error("no images in {dir} (expected .png, .jpg or .jpeg files, an rgb.txt, a EuRoC mav0/cam0/data.csv or a KITTI image_0/times.txt layout){hint}")]
+    #[error(
+        "no images in {dir} (expected .png, .jpg or .jpeg files, an rgb.txt, a EuRoC mav0/cam0/data.csv or a KITTI image_0/times.txt layout){hint}"
+    )]
     NoImages {
         /// The folder.
         dir: PathBuf,
@@ -90,7 +92,9 @@ pub enum SourceError {
     #[error("invalid frame source options: {0}")]
     InvalidOptions(String),
     /// The `ffmpeg` or `ffprobe` program cannot be run.
-    #[error("cannot run `{program}` to read video {path}: {reason}; install ffmpeg (e.g. `apt-get install ffmpeg`) or set the program path in the video options")]
+    #[error(
+        "cannot run `{program}` to read video {path}: {reason}; install ffmpeg (e.g. `apt-get install ffmpeg`) or set the program path in the video options"
+    )]
     FfmpegMissing {
         /// The program that could not be started.
         program: PathBuf,

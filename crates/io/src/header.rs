@@ -18,10 +18,12 @@ const JPEG_MAX_SEGMENTS: usize = 1024;
 pub fn image_size(path: &Path) -> Result<(usize, usize), SourceError> {
     let file = std::fs::File::open(path).map_err(|e| SourceError::io(path, e))?;
     let mut r = BufReader::new(file);
-    let bad = |reason: &str| SourceError::image(
-        colslam_image::ImageError::Decode { path: path.to_path_buf(), reason: reason.to_string() },
-        String::new(),
-    );
+    let bad = |reason: &str| {
+        SourceError::image(
+            colslam_image::ImageError::Decode { path: path.to_path_buf(), reason: reason.to_string() },
+            String::new(),
+        )
+    };
     let mut head = [0u8; 2];
     r.read_exact(&mut head).map_err(|_| bad("file too short for an image header"))?;
     if head == [0x89, b'P'] {

@@ -86,17 +86,20 @@ pub(crate) fn list_kitti(image_dir: &Path, times: &Path) -> Result<Vec<RawEntry>
         stamps.push((n, t));
     }
     let images = list_images(image_dir)?;
-    let numbered: Option<Vec<usize>> = images
-        .iter()
-        .map(|p| p.file_stem().and_then(|s| s.to_str()).and_then(|s| s.parse::<usize>().ok()))
-        .collect();
+    let numbered: Option<Vec<usize>> =
+        images.iter().map(|p| p.file_stem().and_then(|s| s.to_str()).and_then(|s| s.parse::<usize>().ok())).collect();
     let mut out = Vec::with_capacity(images.len());
     match numbered {
         Some(ids) => {
             for (path, id) in images.into_iter().zip(ids) {
                 let &(line, t) = stamps.get(id).ok_or_else(|| SourceError::Layout {
                     path: times.to_path_buf(),
-                    reason: format!("has {} timestamps but image {} needs line {}", stamps.len(), path.display(), id + 1),
+                    reason: format!(
+                        "has {} timestamps but image {} needs line {}",
+                        stamps.len(),
+                        path.display(),
+                        id + 1
+                    ),
                 })?;
                 out.push(RawEntry { path, timestamp: Some(t), line });
             }
@@ -105,7 +108,12 @@ pub(crate) fn list_kitti(image_dir: &Path, times: &Path) -> Result<Vec<RawEntry>
             if images.len() != stamps.len() {
                 return Err(SourceError::Layout {
                     path: times.to_path_buf(),
-                    reason: format!("has {} timestamps but {} holds {} images", stamps.len(), image_dir.display(), images.len()),
+                    reason: format!(
+                        "has {} timestamps but {} holds {} images",
+                        stamps.len(),
+                        image_dir.display(),
+                        images.len()
+                    ),
                 });
             }
             for (path, (line, t)) in images.into_iter().zip(stamps) {

@@ -43,9 +43,30 @@ mod tests {
 
     #[test]
     fn digits_compare_by_value() {
-        let mut v = vec!["frame10.png", "frame2.png", "frame1.png", "frame02.png", "a.png", "frame100.png", "frame9b.png", "frame9a.png"];
+        let mut v = vec![
+            "frame10.png",
+            "frame2.png",
+            "frame1.png",
+            "frame02.png",
+            "a.png",
+            "frame100.png",
+            "frame9b.png",
+            "frame9a.png",
+        ];
         v.sort_by(|a, b| natural_cmp(a, b));
-        assert_eq!(v, ["a.png", "frame1.png", "frame2.png", "frame02.png", "frame9a.png", "frame9b.png", "frame10.png", "frame100.png"]);
+        assert_eq!(
+            v,
+            [
+                "a.png",
+                "frame1.png",
+                "frame2.png",
+                "frame02.png",
+                "frame9a.png",
+                "frame9b.png",
+                "frame10.png",
+                "frame100.png"
+            ]
+        );
     }
 
     #[test]

@@ -49,7 +49,9 @@ impl SourceOptions {
             return Err(SourceError::InvalidOptions("skip must be at least 1 (1 = every frame), got 0".into()));
         }
         if self.max_frames == Some(0) {
-            return Err(SourceError::InvalidOptions("max_frames must be at least 1 (or unset for all frames), got 0".into()));
+            return Err(SourceError::InvalidOptions(
+                "max_frames must be at least 1 (or unset for all frames), got 0".into(),
+            ));
         }
         if let Some(fps) = self.fps
             && !(fps.is_finite() && fps > 0.0)

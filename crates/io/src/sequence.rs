@@ -74,9 +74,8 @@ impl ImageSequence {
                 // A camera.yaml beside the data wins; EuRoC's own sensor.yaml
                 // (`intrinsics: [fu, fv, cu, cv]` lists) counts as the camera
                 // file only if colslam_camera can actually read it.
-                let cam = find_camera_file(&[&root, &mav, &cam_dir]).or_else(|| {
-                    sensor.clone().filter(|p| colslam_camera::file::read_camera_file(p).is_ok())
-                });
+                let cam = find_camera_file(&[&root, &mav, &cam_dir])
+                    .or_else(|| sensor.clone().filter(|p| colslam_camera::file::read_camera_file(p).is_ok()));
                 (SourceKind::Euroc, raw, Some(list), cam, sensor)
             }
             Layout::Kitti { dir, image_dir, times } => {

@@ -257,7 +257,8 @@ impl VideoSource {
         let path = self.path.clone();
         if !ok {
             let code = status.and_then(|s| s.code()).map_or("a signal".to_string(), |c| format!("code {c}"));
-            let reason = format!("ffmpeg exited with {code}: {}", if message.is_empty() { "no message" } else { &message });
+            let reason =
+                format!("ffmpeg exited with {code}: {}", if message.is_empty() { "no message" } else { &message });
             return Some(Err(if self.yielded == 0 {
                 SourceError::Video { path, reason }
             } else {
@@ -525,10 +526,9 @@ fn probe(path: &Path, opts: &SourceOptions) -> Result<VideoInfo, SourceError> {
         return Err(SourceError::Video { path: path.to_path_buf(), reason });
     }
     let bad = |reason: String| SourceError::Video { path: path.to_path_buf(), reason };
-    let json: Value = serde_json::from_slice(&out.stdout).map_err(|e| bad(format!("cannot parse ffprobe output: {e}")))?;
-    parse_probe(&json, opts).map_err(|r| {
-        bad(if stderr.is_empty() { r } else { format!("{r} (ffprobe: {stderr})") })
-    })
+    let json: Value =
+        serde_json::from_slice(&out.stdout).map_err(|e| bad(format!("cannot parse ffprobe output: {e}")))?;
+    parse_probe(&json, opts).map_err(|r| bad(if stderr.is_empty() { r } else { format!("{r} (ffprobe: {stderr})") }))
 }
 
 /// Interprets ffprobe's JSON; errors are reasons (the caller adds the path).
@@ -630,7 +630,8 @@ mod tests {
         let text = (0..20).map(|i| format!("line {i}\n")).collect::<String>();
         let q = quote_stderr(&text);
         assert!(q.starts_with("line 14") && q.ends_with("line 19"), "{q}");
-        let q = quote_stderr("[mov,mp4,m4a,3gp,3g2,mj2 @ 0x55a00b9c5100] moov atom not found\n/x/r.mp4: Invalid data\n");
+        let q =
+            quote_stderr("[mov,mp4,m4a,3gp,3g2,mj2 @ 0x55a00b9c5100] moov atom not found\n/x/r.mp4: Invalid data\n");
         assert_eq!(q, "moov atom not found | /x/r.mp4: Invalid data");
         assert_eq!(strip_component("[h264] odd"), "[h264] odd");
     }

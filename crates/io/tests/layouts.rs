@@ -151,7 +151,11 @@ fn euroc_layout() {
             csv.push_str(&format!("{t},{t}.png\r\n")); // CRLF as in some copies
         }
         std::fs::write(cam_dir.join("data.csv"), csv).unwrap();
-        std::fs::write(cam_dir.join("sensor.yaml"), "sensor_type: camera\nintrinsics: [458.654, 457.296, 367.215, 248.375]\n").unwrap();
+        std::fs::write(
+            cam_dir.join("sensor.yaml"),
+            "sensor_type: camera\nintrinsics: [458.654, 457.296, 367.215, 248.375]\n",
+        )
+        .unwrap();
 
         let (src, frames) = collect(d, &SourceOptions::default());
         assert_eq!(src.kind(), SourceKind::Euroc, "{cam}");
@@ -164,7 +168,11 @@ fn euroc_layout() {
         assert_eq!(src.camera_file(), None);
         assert_eq!(src.native_calibration_file(), Some(cam_dir.join("sensor.yaml")));
         // A sensor.yaml that colslam_camera can read is the camera file.
-        std::fs::write(cam_dir.join("sensor.yaml"), "model: PINHOLE\nwidth: 8\nheight: 6\nfx: 5\nfy: 5\ncx: 4\ncy: 3\n").unwrap();
+        std::fs::write(
+            cam_dir.join("sensor.yaml"),
+            "model: PINHOLE\nwidth: 8\nheight: 6\nfx: 5\nfy: 5\ncx: 4\ncy: 3\n",
+        )
+        .unwrap();
         let src = open_source(d, &SourceOptions::default()).unwrap();
         assert_eq!(src.camera_file(), Some(cam_dir.join("sensor.yaml")));
         // A camera.yaml at the root wins.
@@ -194,7 +202,8 @@ fn kitti_layout() {
         txt.push_str(&format!("{t:.6e}\n"));
     }
     std::fs::write(d.join("times.txt"), txt).unwrap();
-    std::fs::write(d.join("calib.txt"), "P0: 7.188560e+02 0 6.071928e+02 0 0 7.188560e+02 1.852157e+02 0 0 0 1 0\n").unwrap();
+    std::fs::write(d.join("calib.txt"), "P0: 7.188560e+02 0 6.071928e+02 0 0 7.188560e+02 1.852157e+02 0 0 0 1 0\n")
+        .unwrap();
     png(&d.join("image_1/000000.png"), 200); // right camera: ignored
 
     let (src, frames) = collect(d, &SourceOptions::default());

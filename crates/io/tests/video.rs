@@ -113,7 +113,12 @@ fn mp4_with_b_frames_counts_and_timestamps() {
         assert!((f.timestamp - i as f64 / 10.0).abs() < 1e-9, "frame {i}: {}", f.timestamp);
         // Lossy, but each frame must be closest to its own reference frame (display order).
         let err = |k: usize| -> u64 {
-            f.image.data().iter().zip(&reference[k * fb..(k + 1) * fb]).map(|(&a, &b)| (a as i64 - b as i64).unsigned_abs()).sum()
+            f.image
+                .data()
+                .iter()
+                .zip(&reference[k * fb..(k + 1) * fb])
+                .map(|(&a, &b)| (a as i64 - b as i64).unsigned_abs())
+                .sum()
         };
         let best = (0..n).min_by_key(|&k| err(k)).unwrap();
         assert_eq!(best, i, "frame {i} looks like reference frame {best}");

@@ -11,15 +11,18 @@
 //! `scripts/bench-ba-ceres.py`, which runs pycolmap's Ceres bundle adjustment
 //! on the same data.
 
-use colslam_optim::synthetic::{perturb, synthetic_scene, write_colmap_text, SyntheticOptions};
+use colslam_optim::synthetic::{SyntheticOptions, perturb, synthetic_scene, write_colmap_text};
 use colslam_optim::{BaOptions, BundleAdjuster, LinearSolverType, LossFunction};
 use std::path::Path;
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
     let args: Vec<String> = std::env::args().collect();
     let export = args.iter().position(|a| a == "--export").and_then(|i| args.get(i + 1)).map(Path::new);
-    let arg = |name: &str| args.iter().position(|a| a == name).and_then(|i| args.get(i + 1)).and_then(|v| v.parse::<usize>().ok());
-    let mut scenes = vec![("large_100x20000".to_string(), 100, 20_000, 0.6), ("small_7x3000".to_string(), 7, 3_000, 0.3)];
+    let arg = |name: &str| {
+        args.iter().position(|a| a == name).and_then(|i| args.get(i + 1)).and_then(|v| v.parse::<usize>().ok())
+    };
+    let mut scenes =
+        vec![("large_100x20000".to_string(), 100, 20_000, 0.6), ("small_7x3000".to_string(), 7, 3_000, 0.3)];
     if let (Some(poses), Some(points)) = (arg("--poses"), arg("--points")) {
         // A custom scene instead (about 12 observations per point).
         scenes = vec![(format!("custom_{poses}x{points}"), poses, points, 0.6)];

@@ -295,7 +295,8 @@ impl Layout {
         let pairs: Vec<(usize, usize)> =
             obs.iter().enumerate().filter_map(|(k, o)| o.var_point.map(|j| (j, k))).collect();
         let point_obs = Csr::from_pairs(var_points.len(), &pairs);
-        let pairs: Vec<(usize, usize)> = obs.iter().enumerate().filter_map(|(k, o)| o.cam_block.map(|b| (b, k))).collect();
+        let pairs: Vec<(usize, usize)> =
+            obs.iter().enumerate().filter_map(|(k, o)| o.cam_block.map(|b| (b, k))).collect();
         let block_obs = Csr::from_pairs(blocks.len(), &pairs);
         let pairs: Vec<(usize, GroupObs)> = obs
             .iter()
@@ -357,8 +358,7 @@ impl Layout {
         // a time with a marker array, so the temporary memory is the pattern
         // itself (not the sum of squared track lengths).
         let nb = blocks.len();
-        let mut direct: Vec<(usize, usize)> =
-            obs.iter().filter_map(|o| o.pose_block.zip(o.cam_block)).collect();
+        let mut direct: Vec<(usize, usize)> = obs.iter().filter_map(|o| o.pose_block.zip(o.cam_block)).collect();
         direct.sort_unstable();
         direct.dedup();
         let direct = Csr::from_pairs(nb, &direct);

@@ -42,7 +42,7 @@ mod solver;
 pub mod synthetic;
 
 pub use loss::{LossFunction, LossValue};
-pub use options::{BehindCamera, BaError, BaOptions, BaReport, BaTimings, LinearSolverType, Termination};
+pub use options::{BaError, BaOptions, BaReport, BaTimings, BehindCamera, LinearSolverType, Termination};
 pub use problem::{BaCamera, BaPoint, BaPose, IntrinsicsRefinement, Observation, Problem};
-pub use residual::{pose_plus, reprojection_jacobians, reprojection_residual, ResidualJacobians};
+pub use residual::{ResidualJacobians, pose_plus, reprojection_jacobians, reprojection_residual};
 pub use solver::BundleAdjuster;

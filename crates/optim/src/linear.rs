@@ -13,9 +13,9 @@
 //! Every solver returns `None` when `S` is not numerically positive definite;
 //! the LM loop then treats the step as failed and increases the damping.
 
+use crate::BaError;
 use crate::layout::Layout;
 use crate::small::{cholesky_in_place, cholesky_solve};
-use crate::BaError;
 use faer::linalg::solvers::Solve;
 use faer::sparse::linalg::solvers::{Llt as SparseLlt, SymbolicLlt};
 use faer::sparse::{SparseColMatRef, SymbolicSparseColMatRef};

@@ -146,12 +146,13 @@ impl Problem {
                 return Err(BaError::InvalidCamera { index: i, reason: format!("parameter value {v} is not finite") });
             }
             if let IntrinsicsRefinement::Params(idx) = &c.refine
-                && let Some(&k) = idx.iter().find(|&&k| k >= n) {
-                    return Err(BaError::InvalidCamera {
-                        index: i,
-                        reason: format!("refined parameter index {k} out of range for {} ({n} parameters)", c.camera.model),
-                    });
-                }
+                && let Some(&k) = idx.iter().find(|&&k| k >= n)
+            {
+                return Err(BaError::InvalidCamera {
+                    index: i,
+                    reason: format!("refined parameter index {k} out of range for {} ({n} parameters)", c.camera.model),
+                });
+            }
         }
         for (i, p) in self.poses.iter().enumerate() {
             let q = p.cam_from_world.rotation.quaternion();
@@ -196,13 +197,20 @@ impl Problem {
         // world is scaled about camera `first`.
         let rel = b.cam_from_world * a.cam_from_world.inverse();
         let t = rel.translation.abs();
-        let coord = if t.x >= t.y && t.x >= t.z { 0 } else if t.y >= t.z { 1 } else { 2 };
+        let coord = if t.x >= t.y && t.x >= t.z {
+            0
+        } else if t.y >= t.z {
+            1
+        } else {
+            2
+        };
         if let Some(p) = self.poses.get_mut(first) {
             p.fixed = true;
         }
         if first != second
-            && let Some(p) = self.poses.get_mut(second) {
-                p.fixed_translation[coord] = true;
-            }
+            && let Some(p) = self.poses.get_mut(second)
+        {
+            p.fixed_translation[coord] = true;
+        }
     }
 }

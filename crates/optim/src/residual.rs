@@ -123,7 +123,6 @@ pub(crate) mod tests {
         Camera { model, width: 640, height: 480, params }
     }
 
-
     #[test]
     fn jacobians_match_central_differences_for_every_model() {
         let pose = Rigid3::new(Quat::from_euler_angles(0.1, -0.2, 0.3), Vec3::new(0.2, -0.1, 0.5));

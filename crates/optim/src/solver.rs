@@ -17,7 +17,7 @@ use crate::layout::{BlockKind, Layout, MAX_TASK_ROWS, POSE_GROUP};
 use crate::linear::{ReducedSolver, SparsePattern};
 use crate::loss::Corrector;
 use crate::problem::Problem;
-use crate::residual::{pose_plus, reprojection_jacobians, reprojection_residual, POSE_DIM};
+use crate::residual::{POSE_DIM, pose_plus, reprojection_jacobians, reprojection_residual};
 use crate::small::{add_j_x, add_jt_j, add_jt_j_fixed, add_jt_r, spd_inverse3};
 use crate::{BaError, BaOptions, BaReport, BaTimings, LinearSolverType, LossFunction, Termination};
 use colslam_camera::Camera;
@@ -156,10 +156,9 @@ fn solve_impl(problem: &mut Problem, options: &BaOptions) -> Result<BaReport, Ba
         LinearSolverType::SparseSchur if layout.reduced_dim > 0 => {
             ReducedSolver::Sparse(Box::new(SparsePattern::new(&layout)?))
         }
-        LinearSolverType::IterativeSchur => ReducedSolver::Iterative {
-            tolerance: options.pcg_tolerance,
-            max_iterations: options.pcg_max_iterations,
-        },
+        LinearSolverType::IterativeSchur => {
+            ReducedSolver::Iterative { tolerance: options.pcg_tolerance, max_iterations: options.pcg_max_iterations }
+        }
         // Dense, or sparse with an empty reduced system (nothing to factor).
         _ => ReducedSolver::Dense,
     };
@@ -291,7 +290,12 @@ fn evaluate_cost(problem: &Problem, layout: &Layout, state: &State, loss: &LossF
             let mut sum = 0.0;
             for o in chunk {
                 let pixel = problem.observations[o.obs].pixel;
-                let r = reprojection_residual(&state.cameras[o.camera], &state.poses[o.pose], &state.points[o.point], &pixel);
+                let r = reprojection_residual(
+                    &state.cameras[o.camera],
+                    &state.poses[o.pose],
+                    &state.points[o.point],
+                    &pixel,
+                );
                 let Some(r) = r else {
                     if zero_unprojectable {
                         continue;
@@ -312,7 +316,13 @@ fn evaluate_cost(problem: &Problem, layout: &Layout, state: &State, loss: &LossF
 
 /// Evaluates robustified residuals and Jacobians; returns the cost, or `None`
 /// when an observation does not project.
-fn linearize(problem: &Problem, layout: &Layout, state: &State, loss: &LossFunction, jac: &mut Jacobians) -> Option<f64> {
+fn linearize(
+    problem: &Problem,
+    layout: &Layout,
+    state: &State,
+    loss: &LossFunction,
+    jac: &mut Jacobians,
+) -> Option<f64> {
     let zero_unprojectable = layout.zero_unprojectable;
     let stride = jac.cam_stride2;
     let partial: Vec<Option<f64>> = jac
@@ -357,22 +367,24 @@ fn linearize(problem: &Problem, layout: &Layout, state: &State, loss: &LossFunct
                 };
                 rs[k] = [c.residual_scale * r[0], c.residual_scale * r[1]];
                 if let Some(b) = o.pose_block
-                    && let BlockKind::Pose { dims, .. } = &layout.blocks[b].kind {
-                        for (m, &d) in dims.iter().enumerate() {
-                            let col = fix(rj.d_pose.column(d));
-                            jps[k][2 * m] = col[0];
-                            jps[k][2 * m + 1] = col[1];
-                        }
+                    && let BlockKind::Pose { dims, .. } = &layout.blocks[b].kind
+                {
+                    for (m, &d) in dims.iter().enumerate() {
+                        let col = fix(rj.d_pose.column(d));
+                        jps[k][2 * m] = col[0];
+                        jps[k][2 * m + 1] = col[1];
                     }
+                }
                 if let Some(b) = o.cam_block
-                    && let BlockKind::Camera { params, .. } = &layout.blocks[b].kind {
-                        let jc = &mut jcs[k * stride..(k + 1) * stride];
-                        for (m, &p) in params.iter().enumerate() {
-                            let col = fix(rj.d_params.column(p));
-                            jc[2 * m] = col[0];
-                            jc[2 * m + 1] = col[1];
-                        }
+                    && let BlockKind::Camera { params, .. } = &layout.blocks[b].kind
+                {
+                    let jc = &mut jcs[k * stride..(k + 1) * stride];
+                    for (m, &p) in params.iter().enumerate() {
+                        let col = fix(rj.d_params.column(p));
+                        jc[2 * m] = col[0];
+                        jc[2 * m + 1] = col[1];
                     }
+                }
                 if o.var_point.is_some() {
                     for m in 0..3 {
                         let col = fix(rj.d_point.column(m));
@@ -427,7 +439,8 @@ fn assemble(layout: &Layout, jac: &Jacobians, lin: &mut Linearization) {
     {
         let w_pieces = split_lengths(
             w,
-            (0..np).map(|j| layout.w_offset[layout.point_blocks.ptr[j + 1]] - layout.w_offset[layout.point_blocks.ptr[j]]),
+            (0..np)
+                .map(|j| layout.w_offset[layout.point_blocks.ptr[j + 1]] - layout.w_offset[layout.point_blocks.ptr[j]]),
         );
         v.par_iter_mut().zip(g_point.par_iter_mut()).zip(w_pieces.into_par_iter()).enumerate().for_each(
             |(j, ((vj, gj), wj))| {
@@ -619,7 +632,8 @@ fn compute_step(
                         // Y = W_e V^-1 (size x 3).
                         for i in 0..size {
                             for m in 0..3 {
-                                y[3 * i + m] = we[3 * i] * vi[m] + we[3 * i + 1] * vi[3 + m] + we[3 * i + 2] * vi[6 + m];
+                                y[3 * i + m] =
+                                    we[3 * i] * vi[m] + we[3 * i + 1] * vi[3 + m] + we[3 * i + 2] * vi[6 + m];
                             }
                         }
                         let ro = layout.blocks[b].offset - vbase;
@@ -693,7 +707,12 @@ fn compute_step(
                 let mut u = [0.0; 2];
                 for b in [o.pose_block, o.cam_block].into_iter().flatten() {
                     let bb = &layout.blocks[b];
-                    add_j_x(&mut u, cam_side_jacobian(layout, jac, k, b), bb.size, &d_cam[bb.offset..bb.offset + bb.size]);
+                    add_j_x(
+                        &mut u,
+                        cam_side_jacobian(layout, jac, k, b),
+                        bb.size,
+                        &d_cam[bb.offset..bb.offset + bb.size],
+                    );
                 }
                 if let Some(j) = o.var_point {
                     add_j_x(&mut u, &jac.j_point[k], 3, &d_point[j]);
@@ -761,8 +780,8 @@ fn apply_step(layout: &Layout, state: &State, step: &Step) -> State {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::synthetic::{perturb, synthetic_scene, SyntheticOptions};
     use crate::IntrinsicsRefinement;
+    use crate::synthetic::{SyntheticOptions, perturb, synthetic_scene};
 
     /// The assembled gradient `J~^T r~` (robust corrector, compacted free
     /// dims, fixed translation coordinate) equals the finite-difference
@@ -771,10 +790,11 @@ mod tests {
     fn gradient_matches_finite_differences_of_the_cost() {
         // Every model on a tiny scene; one scene with several pose groups of
         // the camera-side pass.
-        let cases = colslam_camera::CameraModelId::ALL
-            .into_iter()
-            .map(|m| (m, 3, 15))
-            .chain([(colslam_camera::CameraModelId::SimpleRadial, 2 * POSE_GROUP + 3, 60)]);
+        let cases = colslam_camera::CameraModelId::ALL.into_iter().map(|m| (m, 3, 15)).chain([(
+            colslam_camera::CameraModelId::SimpleRadial,
+            2 * POSE_GROUP + 3,
+            60,
+        )]);
         for (model, num_poses, num_points) in cases {
             let camera = crate::residual::tests::sample_camera(model);
             let mut s = synthetic_scene(&SyntheticOptions {
@@ -834,8 +854,10 @@ mod tests {
                 set(&mut plus, h);
                 let mut minus = Step { d_cam: zero.d_cam.clone(), d_point: zero.d_point.clone(), model_change: 0.0 };
                 set(&mut minus, -h);
-                let cp = evaluate_cost(&s.problem, &layout, &apply_step(&layout, &state, &plus), &options.loss).unwrap();
-                let cm = evaluate_cost(&s.problem, &layout, &apply_step(&layout, &state, &minus), &options.loss).unwrap();
+                let cp =
+                    evaluate_cost(&s.problem, &layout, &apply_step(&layout, &state, &plus), &options.loss).unwrap();
+                let cm =
+                    evaluate_cost(&s.problem, &layout, &apply_step(&layout, &state, &minus), &options.loss).unwrap();
                 (cp - cm) / (2.0 * h)
             };
             for i in 0..layout.reduced_dim {
@@ -846,7 +868,11 @@ mod tests {
                 };
                 let h = 1e-6 * scale;
                 let g = fd(&|st: &mut Step, h: f64| st.d_cam[i] = h, h);
-                assert!((g - lin.g_cam[i]).abs() < 1e-5 * (1.0 + g.abs()), "{model} reduced param {i}: fd {g} vs {}", lin.g_cam[i]);
+                assert!(
+                    (g - lin.g_cam[i]).abs() < 1e-5 * (1.0 + g.abs()),
+                    "{model} reduced param {i}: fd {g} vs {}",
+                    lin.g_cam[i]
+                );
             }
             for j in 0..layout.var_points.len() {
                 for m in 0..3 {

@@ -3,9 +3,9 @@
 //! point is seen by a window of consecutive poses and the reduced camera
 //! matrix is banded, as in real sequences.
 
+use crate::BaError;
 use crate::problem::{BaPose, IntrinsicsRefinement, Problem};
 use crate::residual::reprojection_residual;
-use crate::BaError;
 use colslam_camera::{Camera, CameraModelId};
 use colslam_geometry::{Quat, Rigid3, SplitMix64, Vec2, Vec3};
 use std::fmt::Write as _;
@@ -44,7 +44,12 @@ impl Default for SyntheticOptions {
         Self {
             num_poses: 10,
             num_points: 500,
-            camera: Camera { model: CameraModelId::SimpleRadial, width: 640, height: 480, params: vec![500.0, 320.0, 240.0, -0.02] },
+            camera: Camera {
+                model: CameraModelId::SimpleRadial,
+                width: 640,
+                height: 480,
+                params: vec![500.0, 320.0, 240.0, -0.02],
+            },
             step: 0.3,
             depth_range: (4.0, 8.0),
             rotation_jitter: 0.05,
@@ -131,9 +136,11 @@ pub fn synthetic_scene(options: &SyntheticOptions) -> Result<SyntheticScene, BaE
             seen.clear();
             for (i, p) in true_poses.iter().enumerate() {
                 if let Some(px) = reprojection_residual(&cam, p, &x, &Vec2::zeros())
-                    && (0.0..w).contains(&px.x) && (0.0..h).contains(&px.y) {
-                        seen.push((i, px));
-                    }
+                    && (0.0..w).contains(&px.x)
+                    && (0.0..h).contains(&px.y)
+                {
+                    seen.push((i, px));
+                }
             }
             if seen.len() >= 2 {
                 break;
@@ -163,7 +170,8 @@ pub fn perturb(problem: &mut Problem, rotation_sigma: f64, translation_sigma: f6
     for p in &mut problem.poses {
         let w = n3(rotation_sigma);
         let t = n3(translation_sigma);
-        p.cam_from_world = Rigid3::new(Quat::from_scaled_axis(w) * p.cam_from_world.rotation, p.cam_from_world.translation + t);
+        p.cam_from_world =
+            Rigid3::new(Quat::from_scaled_axis(w) * p.cam_from_world.rotation, p.cam_from_world.translation + t);
     }
     for p in &mut problem.points {
         p.xyz += n3(point_sigma);
@@ -181,7 +189,15 @@ pub fn write_colmap_text(problem: &Problem, dir: &Path) -> Result<(), BaError> {
     let mut cams = String::from("# CAMERA_ID, MODEL, WIDTH, HEIGHT, PARAMS[]\n");
     for (i, c) in problem.cameras.iter().enumerate() {
         let params: Vec<String> = c.camera.params.iter().map(|v| format!("{v:.17}")).collect();
-        let _ = writeln!(cams, "{} {} {} {} {}", i + 1, c.camera.model.name(), c.camera.width, c.camera.height, params.join(" "));
+        let _ = writeln!(
+            cams,
+            "{} {} {} {} {}",
+            i + 1,
+            c.camera.model.name(),
+            c.camera.width,
+            c.camera.height,
+            params.join(" ")
+        );
     }
     // Per image: its observations, in order (POINT2D_IDX = position).
     let mut per_image: Vec<Vec<usize>> = vec![Vec::new(); problem.poses.len()];
@@ -190,7 +206,8 @@ pub fn write_colmap_text(problem: &Problem, dir: &Path) -> Result<(), BaError> {
         track[o.point].push((o.pose + 1, per_image[o.pose].len()));
         per_image[o.pose].push(k);
     }
-    let mut images = String::from("# IMAGE_ID, QW, QX, QY, QZ, TX, TY, TZ, CAMERA_ID, NAME\n# POINTS2D[] as (X, Y, POINT3D_ID)\n");
+    let mut images =
+        String::from("# IMAGE_ID, QW, QX, QY, QZ, TX, TY, TZ, CAMERA_ID, NAME\n# POINTS2D[] as (X, Y, POINT3D_ID)\n");
     for (i, p) in problem.poses.iter().enumerate() {
         let q = p.cam_from_world.quat_wxyz();
         let t = p.cam_from_world.translation;
@@ -198,7 +215,16 @@ pub fn write_colmap_text(problem: &Problem, dir: &Path) -> Result<(), BaError> {
         let _ = writeln!(
             images,
             "{} {:.17} {:.17} {:.17} {:.17} {:.17} {:.17} {:.17} {} {}.png",
-            i + 1, q[0], q[1], q[2], q[3], t.x, t.y, t.z, cam + 1, i
+            i + 1,
+            q[0],
+            q[1],
+            q[2],
+            q[3],
+            t.x,
+            t.y,
+            t.z,
+            cam + 1,
+            i
         );
         let obs: Vec<String> = per_image[i]
             .iter()
@@ -212,7 +238,8 @@ pub fn write_colmap_text(problem: &Problem, dir: &Path) -> Result<(), BaError> {
     let mut pts = String::from("# POINT3D_ID, X, Y, Z, R, G, B, ERROR, TRACK[] as (IMAGE_ID, POINT2D_IDX)\n");
     for (j, p) in problem.points.iter().enumerate() {
         let tr: Vec<String> = track[j].iter().map(|(i, k)| format!("{i} {k}")).collect();
-        let _ = writeln!(pts, "{} {:.17} {:.17} {:.17} 128 128 128 0 {}", j + 1, p.xyz.x, p.xyz.y, p.xyz.z, tr.join(" "));
+        let _ =
+            writeln!(pts, "{} {:.17} {:.17} {:.17} 128 128 128 0 {}", j + 1, p.xyz.x, p.xyz.y, p.xyz.z, tr.join(" "));
     }
     for (name, text) in [("cameras.txt", cams), ("images.txt", images), ("points3D.txt", pts)] {
         // Temp-then-rename: a reader never sees a half-written file.

@@ -1,10 +1,10 @@
 //! End-to-end bundle-adjustment tests on seeded synthetic scenes.
 
 use colslam_geometry::{Rigid3, Vec2, Vec3};
-use colslam_optim::synthetic::{perturb, synthetic_scene, SyntheticOptions, SyntheticScene};
+use colslam_optim::synthetic::{SyntheticOptions, SyntheticScene, perturb, synthetic_scene};
 use colslam_optim::{
-    BaError, BaOptions, BaPose, BehindCamera, BundleAdjuster, IntrinsicsRefinement, LinearSolverType, LossFunction, Problem,
-    Termination,
+    BaError, BaOptions, BaPose, BehindCamera, BundleAdjuster, IntrinsicsRefinement, LinearSolverType, LossFunction,
+    Problem, Termination,
 };
 
 fn scene(num_poses: usize, num_points: usize, seed: u64) -> SyntheticScene {
@@ -49,7 +49,12 @@ fn perturbed_problem_returns_to_ground_truth() {
     perturb_with_gauge(&mut s, 0.01, 0.05, 0.1, 7);
     let before = max_rel_error(&s.problem, &s.true_poses, &s.true_points);
     assert!(before > 1e-3);
-    let options = BaOptions { function_tolerance: 0.0, parameter_tolerance: 1e-14, gradient_tolerance: 1e-14, ..Default::default() };
+    let options = BaOptions {
+        function_tolerance: 0.0,
+        parameter_tolerance: 1e-14,
+        gradient_tolerance: 1e-14,
+        ..Default::default()
+    };
     let report = BundleAdjuster::solve(&mut s.problem, &options).unwrap();
     let after = max_rel_error(&s.problem, &s.true_poses, &s.true_points);
     assert!(report.final_cost < 1e-12 && report.initial_cost > 1.0, "{report:?}");
@@ -63,7 +68,12 @@ fn refines_focal_length_and_distortion() {
     perturb_with_gauge(&mut s, 0.002, 0.01, 0.02, 8);
     s.problem.cameras[0].camera.params[0] *= 1.02; // f
     s.problem.cameras[0].camera.params[3] = 0.0; // k
-    let options = BaOptions { function_tolerance: 0.0, parameter_tolerance: 1e-14, gradient_tolerance: 1e-14, ..Default::default() };
+    let options = BaOptions {
+        function_tolerance: 0.0,
+        parameter_tolerance: 1e-14,
+        gradient_tolerance: 1e-14,
+        ..Default::default()
+    };
     let report = BundleAdjuster::solve(&mut s.problem, &options).unwrap();
     assert_eq!(report.num_variable_cameras, 1);
     let got = &s.problem.cameras[0].camera.params;
@@ -94,7 +104,8 @@ fn run_outlier_scene(loss: LossFunction, drop_outliers: bool) -> (f64, f64) {
     let mut s = outlier_scene();
     assert!(s.outliers.iter().filter(|&&o| o).count() > 50);
     if drop_outliers {
-        let keep: Vec<_> = s.problem.observations.iter().zip(&s.outliers).filter(|(_, o)| !**o).map(|(x, _)| *x).collect();
+        let keep: Vec<_> =
+            s.problem.observations.iter().zip(&s.outliers).filter(|(_, o)| !**o).map(|(x, _)| *x).collect();
         s.problem.observations = keep;
         s.outliers = vec![false; s.problem.observations.len()];
     }
@@ -160,19 +171,21 @@ fn robust_loss_downweights_outliers() {
 
 #[test]
 fn dense_sparse_and_iterative_agree() {
-    let base = synthetic_scene(&SyntheticOptions { num_poses: 40, num_points: 1500, pixel_noise: 0.5, seed: 5, ..Default::default() })
-        .unwrap();
+    let base = synthetic_scene(&SyntheticOptions {
+        num_poses: 40,
+        num_points: 1500,
+        pixel_noise: 0.5,
+        seed: 5,
+        ..Default::default()
+    })
+    .unwrap();
     let mut results = Vec::new();
     for solver in [LinearSolverType::DenseSchur, LinearSolverType::SparseSchur, LinearSolverType::IterativeSchur] {
         let mut p = base.problem.clone();
         p.fix_gauge(0, 1);
         perturb(&mut p, 0.002, 0.01, 0.05, 10);
-        let options = BaOptions {
-            linear_solver: solver,
-            function_tolerance: 1e-12,
-            pcg_tolerance: 1e-10,
-            ..Default::default()
-        };
+        let options =
+            BaOptions { linear_solver: solver, function_tolerance: 1e-12, pcg_tolerance: 1e-10, ..Default::default() };
         let report = BundleAdjuster::solve(&mut p, &options).unwrap();
         assert_eq!(report.linear_solver, solver);
         assert!(report.termination.is_converged(), "{solver:?}: {report:?}");
@@ -192,8 +205,14 @@ fn dense_sparse_and_iterative_agree() {
 
 #[test]
 fn results_do_not_depend_on_thread_count() {
-    let base = synthetic_scene(&SyntheticOptions { num_poses: 12, num_points: 5000, pixel_noise: 0.5, seed: 6, ..Default::default() })
-        .unwrap();
+    let base = synthetic_scene(&SyntheticOptions {
+        num_poses: 12,
+        num_points: 5000,
+        pixel_noise: 0.5,
+        seed: 6,
+        ..Default::default()
+    })
+    .unwrap();
     let run = |threads: usize| {
         let mut p = base.problem.clone();
         p.fix_gauge(0, 1);
@@ -211,8 +230,14 @@ fn results_do_not_depend_on_thread_count() {
 fn free_gauge_still_converges() {
     // No pose fixed: the normal equations are singular along the 7 gauge
     // directions; the LM damping keeps every step well defined.
-    let mut s = synthetic_scene(&SyntheticOptions { num_poses: 8, num_points: 300, pixel_noise: 0.3, seed: 17, ..Default::default() })
-        .unwrap();
+    let mut s = synthetic_scene(&SyntheticOptions {
+        num_poses: 8,
+        num_points: 300,
+        pixel_noise: 0.3,
+        seed: 17,
+        ..Default::default()
+    })
+    .unwrap();
     perturb(&mut s.problem, 0.003, 0.01, 0.03, 18);
     let report = BundleAdjuster::solve(&mut s.problem, &BaOptions::default()).unwrap();
     assert!(report.termination.is_converged(), "{report:?}");
@@ -248,7 +273,13 @@ fn degenerate_problems_do_not_panic() {
     // A point seen once is held constant; the rest still solves.
     let mut s = scene(4, 50, 14);
     let lone = s.problem.add_point(Vec3::new(0.1, 0.0, 5.0), false);
-    let px = colslam_optim::reprojection_residual(&s.problem.cameras[0].camera, &s.problem.poses[0].cam_from_world, &Vec3::new(0.1, 0.0, 5.0), &Vec2::zeros()).unwrap();
+    let px = colslam_optim::reprojection_residual(
+        &s.problem.cameras[0].camera,
+        &s.problem.poses[0].cam_from_world,
+        &Vec3::new(0.1, 0.0, 5.0),
+        &Vec2::zeros(),
+    )
+    .unwrap();
     s.problem.add_observation(0, 0, lone, px + Vec2::new(3.0, 0.0));
     s.problem.fix_gauge(0, 1);
     let r = BundleAdjuster::solve(&mut s.problem, &BaOptions::default()).unwrap();
@@ -258,20 +289,33 @@ fn degenerate_problems_do_not_panic() {
     // NaN inputs and bad indices are errors naming the item.
     let mut s = scene(3, 20, 15);
     s.problem.points[3].xyz.x = f64::NAN;
-    assert_eq!(BundleAdjuster::solve(&mut s.problem, &BaOptions::default()), Err(BaError::NonFinite { what: "point", index: 3 }));
+    assert_eq!(
+        BundleAdjuster::solve(&mut s.problem, &BaOptions::default()),
+        Err(BaError::NonFinite { what: "point", index: 3 })
+    );
     let mut s = scene(3, 20, 15);
     s.problem.observations[2].pixel.y = f64::INFINITY;
-    assert!(matches!(BundleAdjuster::solve(&mut s.problem, &BaOptions::default()), Err(BaError::NonFinite { index: 2, .. })));
+    assert!(matches!(
+        BundleAdjuster::solve(&mut s.problem, &BaOptions::default()),
+        Err(BaError::NonFinite { index: 2, .. })
+    ));
     let mut s = scene(3, 20, 15);
     s.problem.observations[5].pose = 99;
     let e = BundleAdjuster::solve(&mut s.problem, &BaOptions::default()).unwrap_err();
     assert!(e.to_string().contains("observation 5"), "{e}");
     let mut s = scene(3, 20, 15);
     s.problem.cameras[0].camera.params.pop();
-    assert!(matches!(BundleAdjuster::solve(&mut s.problem, &BaOptions::default()), Err(BaError::InvalidCamera { index: 0, .. })));
+    assert!(matches!(
+        BundleAdjuster::solve(&mut s.problem, &BaOptions::default()),
+        Err(BaError::InvalidCamera { index: 0, .. })
+    ));
     let mut s = scene(3, 20, 15);
-    s.problem.poses[1] = BaPose::variable(Rigid3::new(s.problem.poses[1].cam_from_world.rotation, Vec3::new(f64::NAN, 0.0, 0.0)));
-    assert!(matches!(BundleAdjuster::solve(&mut s.problem, &BaOptions::default()), Err(BaError::NonFinite { what: "pose", index: 1 })));
+    s.problem.poses[1] =
+        BaPose::variable(Rigid3::new(s.problem.poses[1].cam_from_world.rotation, Vec3::new(f64::NAN, 0.0, 0.0)));
+    assert!(matches!(
+        BundleAdjuster::solve(&mut s.problem, &BaOptions::default()),
+        Err(BaError::NonFinite { what: "pose", index: 1 })
+    ));
 
     // Bad options.
     let mut s = scene(3, 20, 15);

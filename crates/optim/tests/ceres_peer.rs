@@ -3,7 +3,7 @@
 //! cost definition, loss and pixel convention agree) and the same final cost,
 //! with COLMAP's treatment of points behind a camera (zero residual).
 
-use colslam_optim::synthetic::{perturb, synthetic_scene, write_colmap_text, SyntheticOptions};
+use colslam_optim::synthetic::{SyntheticOptions, perturb, synthetic_scene, write_colmap_text};
 use colslam_optim::{BaOptions, BundleAdjuster, LossFunction};
 use std::process::Command;
 
@@ -53,7 +53,10 @@ fn matches_pycolmap_ceres_bundle_adjustment() {
         let mut p = problem.clone();
         let report = BundleAdjuster::solve(&mut p, &BaOptions { loss, ..Default::default() }).unwrap();
         let (ceres_initial, ceres_final) = (json_number(&text, "initial_cost"), json_number(&text, "final_cost"));
-        eprintln!("{name}: ours {} -> {} in {} iterations; ceres {text}", report.initial_cost, report.final_cost, report.iterations);
+        eprintln!(
+            "{name}: ours {} -> {} in {} iterations; ceres {text}",
+            report.initial_cost, report.final_cost, report.iterations
+        );
         assert!(
             (report.initial_cost - ceres_initial).abs() < 1e-9 * ceres_initial,
             "{name}: {} vs {ceres_initial}",
@@ -62,7 +65,11 @@ fn matches_pycolmap_ceres_bundle_adjustment() {
         // Plain least squares with 2 % gross outliers takes ~60 chaotic
         // iterations; the paths drift apart at round-off level.
         let tol = if loss == LossFunction::Trivial { 1e-4 } else { 1e-5 };
-        assert!((report.final_cost - ceres_final).abs() < tol * ceres_final, "{name}: {} vs {ceres_final}", report.final_cost);
+        assert!(
+            (report.final_cost - ceres_final).abs() < tol * ceres_final,
+            "{name}: {} vs {ceres_final}",
+            report.final_cost
+        );
         assert_eq!(json_number(&text, "num_residuals") as usize, report.num_residuals);
     }
     let _ = std::fs::remove_dir_all(&dir);

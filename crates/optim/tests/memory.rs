@@ -8,11 +8,11 @@
 //! the points must cost about the same bytes per observation, and below
 //! [`MAX_BYTES_PER_OBSERVATION`].
 
-use colslam_optim::synthetic::{perturb, synthetic_scene, SyntheticOptions};
+use colslam_optim::synthetic::{SyntheticOptions, perturb, synthetic_scene};
 use colslam_optim::{BaOptions, BundleAdjuster, LossFunction};
 use std::alloc::{GlobalAlloc, Layout, System};
-use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::Mutex;
+use std::sync::atomic::{AtomicUsize, Ordering};
 
 /// Bytes currently allocated through the global allocator.
 static CURRENT: AtomicUsize = AtomicUsize::new(0);
@@ -127,7 +127,10 @@ fn memory_is_linear_in_observations() {
     let m23 = (b3 - b2) / (o3 - o2);
     let intercept = b3 - m23 * o3;
     eprintln!("marginal {m12:.0} and {m23:.0} B/obs; intercept {:.1} MB at {NUM_POSES} poses", intercept / 1e6);
-    assert!(m12 < MAX_MARGINAL_BYTES_PER_OBSERVATION && m23 < MAX_MARGINAL_BYTES_PER_OBSERVATION, "{m12:.0}, {m23:.0} B/obs");
+    assert!(
+        m12 < MAX_MARGINAL_BYTES_PER_OBSERVATION && m23 < MAX_MARGINAL_BYTES_PER_OBSERVATION,
+        "{m12:.0}, {m23:.0} B/obs"
+    );
     assert!(m12 > 0.0 && m23 > 0.0, "memory must grow with observations: {m12:.0}, {m23:.0} B/obs");
     assert!(m23 < MAX_GROWTH * m12, "marginal bytes per observation grew from {m12:.0} to {m23:.0}");
     assert!(b3 / o3 < MAX_BYTES_PER_OBSERVATION, "{:.0} B/obs at {o3} observations", b3 / o3);

@@ -60,8 +60,9 @@ mod tests {
 
     #[test]
     fn fisheye_centre_and_off_axis() {
-        let cam = Camera::new(CameraModelId::OpenCvFisheye, 640, 480, vec![300.0, 300.0, 320.0, 240.0, 0.0, 0.0, 0.0, 0.0])
-            .unwrap();
+        let cam =
+            Camera::new(CameraModelId::OpenCvFisheye, 640, 480, vec![300.0, 300.0, 320.0, 240.0, 0.0, 0.0, 0.0, 0.0])
+                .unwrap();
         let id = Rigid3::identity();
         let c = project(&cam, &id, &Vec3::new(0.0, 0.0, 1.0)).unwrap();
         assert!((c - Vec2::new(320.0, 240.0)).norm() < 1e-12);

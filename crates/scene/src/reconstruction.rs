@@ -351,10 +351,17 @@ impl Reconstruction {
     /// Adds a 3D point observed by `track` under the next id. Every element
     /// must name a registered image's keypoint that observes no other point,
     /// each at most once. The error is set to unknown (-1).
-    pub fn add_point3d(&mut self, xyz: Vec3, color: [u8; 3], track: Vec<TrackElement>) -> Result<Point3DId, SceneError> {
-        let id = Point3DId(self.max_point3d_id.checked_add(1).ok_or_else(|| {
-            SceneError::DuplicateId("3D point ids are exhausted (u64::MAX reached)".into())
-        })?);
+    pub fn add_point3d(
+        &mut self,
+        xyz: Vec3,
+        color: [u8; 3],
+        track: Vec<TrackElement>,
+    ) -> Result<Point3DId, SceneError> {
+        let id = Point3DId(
+            self.max_point3d_id
+                .checked_add(1)
+                .ok_or_else(|| SceneError::DuplicateId("3D point ids are exhausted (u64::MAX reached)".into()))?,
+        );
         self.insert_point3d(id, Point3D { xyz, color, error: UNKNOWN_ERROR, track })?;
         Ok(id)
     }
@@ -477,11 +484,7 @@ impl Reconstruction {
 
     /// Mean track length (0 without points), as COLMAP computes it.
     pub fn mean_track_length(&self) -> f64 {
-        if self.points3d.is_empty() {
-            0.0
-        } else {
-            self.num_observations() as f64 / self.points3d.len() as f64
-        }
+        if self.points3d.is_empty() { 0.0 } else { self.num_observations() as f64 / self.points3d.len() as f64 }
     }
 
     /// Mean observations per registered image (0 without registered images).
@@ -528,11 +531,8 @@ impl Reconstruction {
 
     /// Mean of the stored point errors over points that have one (0 if none).
     pub fn mean_reprojection_error(&self) -> f64 {
-        let (sum, n) = self
-            .points3d
-            .values()
-            .filter(|p| p.has_error())
-            .fold((0.0, 0usize), |(s, n), p| (s + p.error, n + 1));
+        let (sum, n) =
+            self.points3d.values().filter(|p| p.has_error()).fold((0.0, 0usize), |(s, n), p| (s + p.error, n + 1));
         if n == 0 { 0.0 } else { sum / n as f64 }
     }
 
@@ -655,12 +655,8 @@ impl Reconstruction {
         let mut report = FilterReport::default();
         for id in self.selected_points(points) {
             let Some(p) = self.points3d.get(&id) else { continue };
-            let centers: Vec<Vec3> = p
-                .track
-                .iter()
-                .filter_map(|el| self.images.get(&el.image_id))
-                .map(Image::projection_center)
-                .collect();
+            let centers: Vec<Vec3> =
+                p.track.iter().filter_map(|el| self.images.get(&el.image_id)).map(Image::projection_center).collect();
             let mut keep = false;
             'pairs: for (i, c1) in centers.iter().enumerate() {
                 for c2 in centers.iter().skip(i + 1) {
@@ -884,7 +880,8 @@ mod tests {
         let mut img = Image::new(ImageId(3), "a", cam, vec![colslam_geometry::Vec2::zeros(); 3]);
         img.registered = true;
         rec.add_image(img).unwrap_or_else(|e| panic!("{e}"));
-        let p = Point3D { xyz: Vec3::zeros(), color: [0; 3], error: 0.5, track: vec![TrackElement::new(ImageId(3), 0)] };
+        let p =
+            Point3D { xyz: Vec3::zeros(), color: [0; 3], error: 0.5, track: vec![TrackElement::new(ImageId(3), 0)] };
         rec.add_point3d_with_id(Point3DId(41), p.clone()).unwrap_or_else(|e| panic!("{e}"));
         assert!(rec.add_point3d_with_id(Point3DId(41), p).is_err());
         let next = rec.add_point3d(Vec3::zeros(), [0; 3], vec![TrackElement::new(ImageId(3), 1)]);

@@ -103,7 +103,9 @@ fn pycolmap_imports_our_ply() {
         let out = colslam_testutil::run_python(&py, &[script("read_ply.py").to_str().unwrap(), path.to_str().unwrap()]);
         let v: serde_json::Value = serde_json::from_str(&out).unwrap();
         assert_eq!(v["n"].as_u64().unwrap() as usize, rec.num_points3d());
-        for ((_, p), (xyz, rgb)) in rec.points3d().zip(v["xyz"].as_array().unwrap().iter().zip(v["rgb"].as_array().unwrap())) {
+        for ((_, p), (xyz, rgb)) in
+            rec.points3d().zip(v["xyz"].as_array().unwrap().iter().zip(v["rgb"].as_array().unwrap()))
+        {
             for k in 0..3 {
                 let theirs = xyz[k].as_f64().unwrap();
                 assert_eq!(theirs as f32, p.xyz[k] as f32, "{format:?}");

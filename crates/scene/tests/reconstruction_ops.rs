@@ -136,7 +136,8 @@ fn deregistering_removes_observations_and_short_tracks() {
 fn transform_and_normalize_keep_projections() {
     let mut rec = synthetic_model(5);
     let before = errors(&rec);
-    let s = Sim3 { scale: 3.5, rotation: Quat::from_euler_angles(0.3, -0.5, 1.2), translation: Vec3::new(4.0, -2.0, 7.0) };
+    let s =
+        Sim3 { scale: 3.5, rotation: Quat::from_euler_angles(0.3, -0.5, 1.2), translation: Vec3::new(4.0, -2.0, 7.0) };
     rec.transform(&s);
     for (a, b) in errors(&rec).iter().zip(&before) {
         assert!((a - b).abs() < 1e-9, "{a} vs {b}");

@@ -28,29 +28,17 @@ pub struct BundleConfig {
 }
 
 /// Options of [`adjust_bundle`] beyond the configuration.
-#[derive(Debug, Clone)]
+#[derive(Debug, Clone, Default)]
 pub struct BundleOptions {
     /// Solver options (loss, tolerances, iterations, which intrinsics).
     pub ba: BaOptions,
-}
-
-impl Default for BundleOptions {
-    fn default() -> Self {
-        Self { ba: BaOptions::default() }
-    }
 }
 
 impl BundleOptions {
     /// COLMAP's local-BA settings: soft-L1 loss of scale 1 px, at most 25
     /// iterations.
     pub fn local() -> Self {
-        Self {
-            ba: BaOptions {
-                loss: LossFunction::SoftL1(1.0),
-                max_iterations: 25,
-                ..BaOptions::default()
-            },
-        }
+        Self { ba: BaOptions { loss: LossFunction::SoftL1(1.0), max_iterations: 25, ..BaOptions::default() } }
     }
 
     /// COLMAP's global-BA settings: trivial loss, at most 50 iterations.
@@ -79,7 +67,11 @@ pub fn most_connected_images(rec: &Reconstruction, image_id: ImageId, max_images
 
 /// Runs bundle adjustment on the part of `rec` named by `config` and writes
 /// the result back.
-pub fn adjust_bundle(rec: &mut Reconstruction, config: &BundleConfig, opts: &BundleOptions) -> Result<BaReport, SfmError> {
+pub fn adjust_bundle(
+    rec: &mut Reconstruction,
+    config: &BundleConfig,
+    opts: &BundleOptions,
+) -> Result<BaReport, SfmError> {
     let variable_points: BTreeSet<Point3DId> = match &config.variable_points {
         Some(p) => p.iter().copied().filter(|id| rec.point3d(*id).is_some()).collect(),
         None => {
@@ -109,10 +101,11 @@ pub fn adjust_bundle(rec: &mut Reconstruction, config: &BundleConfig, opts: &Bun
             continue;
         }
         let variable = config.variable_images.contains(id) && !config.constant_images.contains(id);
-        if !cam_index.contains_key(&img.camera_id) {
+        if let std::collections::btree_map::Entry::Vacant(e) = cam_index.entry(img.camera_id) {
             let cam = rec.camera(img.camera_id).ok_or(colslam_scene::SceneError::UnknownCamera(img.camera_id))?;
-            let refine = if config.refine_intrinsics { IntrinsicsRefinement::FromOptions } else { IntrinsicsRefinement::Fixed };
-            cam_index.insert(img.camera_id, problem.add_camera(cam.camera.clone(), refine));
+            let refine =
+                if config.refine_intrinsics { IntrinsicsRefinement::FromOptions } else { IntrinsicsRefinement::Fixed };
+            e.insert(problem.add_camera(cam.camera.clone(), refine));
         }
         let pose = if variable { BaPose::variable(img.cam_from_world) } else { BaPose::fixed(img.cam_from_world) };
         pose_index.insert(*id, problem.add_pose(pose));
@@ -120,11 +113,8 @@ pub fn adjust_bundle(rec: &mut Reconstruction, config: &BundleConfig, opts: &Bun
     // Cameras used by a constant image only stay fixed even when refining.
     if config.refine_intrinsics {
         for (cid, &ci) in &cam_index {
-            let used_by_variable = config
-                .variable_images
-                .iter()
-                .filter_map(|id| rec.image(*id))
-                .any(|img| img.camera_id == *cid);
+            let used_by_variable =
+                config.variable_images.iter().filter_map(|id| rec.image(*id)).any(|img| img.camera_id == *cid);
             if !used_by_variable {
                 problem.cameras[ci].refine = IntrinsicsRefinement::Fixed;
             }
@@ -155,19 +145,19 @@ pub fn adjust_bundle(rec: &mut Reconstruction, config: &BundleConfig, opts: &Bun
             _ => None,
         }
     });
-    if let Some((a, b)) = gauge {
-        if let (Some(&ia), Some(&ib)) = (pose_index.get(&a), pose_index.get(&b)) {
-            problem.fix_gauge(ia, ib);
-        }
+    if let Some((a, b)) = gauge
+        && let (Some(&ia), Some(&ib)) = (pose_index.get(&a), pose_index.get(&b))
+    {
+        problem.fix_gauge(ia, ib);
     }
 
     let report = BundleAdjuster::solve(&mut problem, &opts.ba)?;
 
     for (id, &pi) in &pose_index {
-        if let Some(pose) = problem.poses.get(pi) {
-            if !pose.fixed || pose.fixed_translation.iter().any(|f| *f) {
-                rec.set_cam_from_world(*id, pose.cam_from_world)?;
-            }
+        if let Some(pose) = problem.poses.get(pi)
+            && (!pose.fixed || pose.fixed_translation.iter().any(|f| *f))
+        {
+            rec.set_cam_from_world(*id, pose.cam_from_world)?;
         }
     }
     for (pid, bp) in point_ids.iter().zip(&problem.points) {
@@ -187,7 +177,11 @@ pub fn adjust_bundle(rec: &mut Reconstruction, config: &BundleConfig, opts: &Bun
 
 /// Global bundle adjustment: every registered image and every point vary,
 /// the gauge is fixed through the first two registered images.
-pub fn adjust_global(rec: &mut Reconstruction, refine_intrinsics: bool, opts: &BundleOptions) -> Result<BaReport, SfmError> {
+pub fn adjust_global(
+    rec: &mut Reconstruction,
+    refine_intrinsics: bool,
+    opts: &BundleOptions,
+) -> Result<BaReport, SfmError> {
     let reg: Vec<ImageId> = rec.registered_image_ids().to_vec();
     let gauge = match (reg.first(), reg.get(1)) {
         (Some(a), Some(b)) => Some((*a, *b)),
@@ -231,11 +225,8 @@ pub fn adjust_local(
         }
     }
     let has_constant = observers.iter().any(|id| !variable.contains(id));
-    let gauge = if has_constant || local.len() < 2 {
-        None
-    } else {
-        Some((local[local.len() - 1], local[local.len() - 2]))
-    };
+    let gauge =
+        if has_constant || local.len() < 2 { None } else { Some((local[local.len() - 1], local[local.len() - 2])) };
     let config = BundleConfig {
         variable_images: variable,
         constant_images: BTreeSet::new(),

@@ -146,10 +146,7 @@ impl CorrespondenceGraph {
 
     /// The correspondences of one keypoint (empty for an unknown image or index).
     pub fn correspondences(&self, image_id: ImageId, point2d_idx: u32) -> &[Correspondence] {
-        self.images
-            .get(&image_id)
-            .and_then(|n| n.corrs.get(point2d_idx as usize))
-            .map_or(&[], Vec::as_slice)
+        self.images.get(&image_id).and_then(|n| n.corrs.get(point2d_idx as usize)).map_or(&[], Vec::as_slice)
     }
 
     /// True when the keypoint has at least one correspondence.

@@ -4,8 +4,8 @@
 //! and the observation manager (filters, register/deregister), as the
 //! sequential SLAM pipeline drives them (paper sections 3.3-3.6).
 
-pub mod correspondence_graph;
 pub mod bundle;
+pub mod correspondence_graph;
 pub mod error;
 pub mod triangulator;
 

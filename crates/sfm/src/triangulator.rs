@@ -9,7 +9,7 @@
 //! `Reconstruction` and a `CorrespondenceGraph`, so the caller owns both.
 
 use crate::{Correspondence, CorrespondenceGraph, SfmError};
-use colslam_estimators::triangulation::{triangulate_multiview, TriangulationOptions};
+use colslam_estimators::triangulation::{TriangulationOptions, triangulate_multiview};
 use colslam_geometry::{Rigid3, Vec2, Vec3};
 use colslam_scene::{ImageId, Point3DId, Reconstruction, TrackElement};
 use std::collections::{BTreeSet, HashSet};
@@ -173,9 +173,7 @@ fn reprojection_error_px(rec: &Reconstruction, el: TrackElement, xyz: &Vec3) -> 
     let Some(img) = rec.image(el.image_id) else { return f64::INFINITY };
     let Some(cam) = rec.camera(img.camera_id) else { return f64::INFINITY };
     let Some(kp) = img.points2d.get(el.point2d_idx as usize) else { return f64::INFINITY };
-    cam.camera
-        .img_from_cam(&img.cam_from_world.transform_point(xyz))
-        .map_or(f64::INFINITY, |px| (px - kp.xy).norm())
+    cam.camera.img_from_cam(&img.cam_from_world.transform_point(xyz)).map_or(f64::INFINITY, |px| (px - kp.xy).norm())
 }
 
 /// Registered-image correspondences of a keypoint (up to `transitivity` hops).
@@ -283,7 +281,10 @@ fn create(
     if free.len() < 2 {
         return Ok(0);
     }
-    if opts.ignore_two_view_tracks && free.len() == 2 && graph.correspondences(free[0].el.image_id, free[0].el.point2d_idx).len() == 1 {
+    if opts.ignore_two_view_tracks
+        && free.len() == 2
+        && graph.correspondences(free[0].el.image_id, free[0].el.point2d_idx).len() == 1
+    {
         return Ok(0);
     }
     free.truncate(MAX_CREATE_VIEWS);
@@ -334,7 +335,8 @@ fn create(
         rec.add_point3d(tp.point, DEFAULT_POINT_COLOR, track)?;
         created += 1;
         let inlier_set: HashSet<usize> = inliers.into_iter().collect();
-        remaining = remaining.into_iter().enumerate().filter(|(k, _)| !inlier_set.contains(k)).map(|(_, v)| v).collect();
+        remaining =
+            remaining.into_iter().enumerate().filter(|(k, _)| !inlier_set.contains(k)).map(|(_, v)| v).collect();
     }
     Ok(created)
 }
@@ -484,10 +486,8 @@ pub fn retriangulate(
 ) -> Result<TriangulationReport, SfmError> {
     opts.validate()?;
     let focus: Option<HashSet<ImageId>> = images.map(|s| s.iter().copied().collect());
-    let pairs: Vec<(ImageId, ImageId, usize)> = graph
-        .image_pairs()
-        .filter(|(a, b, _)| focus.as_ref().is_none_or(|f| f.contains(a) || f.contains(b)))
-        .collect();
+    let pairs: Vec<(ImageId, ImageId, usize)> =
+        graph.image_pairs().filter(|(a, b, _)| focus.as_ref().is_none_or(|f| f.contains(a) || f.contains(b))).collect();
     let mut report = TriangulationReport::default();
     for (a, b, num_corrs) in pairs {
         let registered = |id| rec.image(id).is_some_and(|i| i.registered);
@@ -551,7 +551,8 @@ mod tests {
             .collect();
         let mut graph = CorrespondenceGraph::new();
         for i in 1..=n_img {
-            let pose = Rigid3::new(Quat::from_euler_angles(0.0, 0.02 * i as f64, 0.0), Vec3::new(-0.3 * i as f64, 0.0, 0.0));
+            let pose =
+                Rigid3::new(Quat::from_euler_angles(0.0, 0.02 * i as f64, 0.0), Vec3::new(-0.3 * i as f64, 0.0, 0.0));
             let kps: Vec<Vec2> = pts.iter().map(|p| cam.img_from_cam(&pose.transform_point(p)).unwrap()).collect();
             let mut img = Image::new(ImageId(i), format!("{i}.png"), cam_id, kps);
             img.cam_from_world = pose;
@@ -597,12 +598,20 @@ mod tests {
                 let xyz = {
                     let va = view_of(&rec, TrackElement::new(ImageId(a), k)).unwrap();
                     let vb = view_of(&rec, TrackElement::new(ImageId(b), k)).unwrap();
-                    triangulate_multiview(&[va.pose, vb.pose], &[va.normalized, vb.normalized], &TriangulationOptions::default())
-                        .unwrap()
-                        .point
+                    triangulate_multiview(
+                        &[va.pose, vb.pose],
+                        &[va.normalized, vb.normalized],
+                        &TriangulationOptions::default(),
+                    )
+                    .unwrap()
+                    .point
                 };
-                rec.add_point3d(xyz, DEFAULT_POINT_COLOR, vec![TrackElement::new(ImageId(a), k), TrackElement::new(ImageId(b), k)])
-                    .unwrap();
+                rec.add_point3d(
+                    xyz,
+                    DEFAULT_POINT_COLOR,
+                    vec![TrackElement::new(ImageId(a), k), TrackElement::new(ImageId(b), k)],
+                )
+                .unwrap();
             }
         }
         assert_eq!(rec.num_points3d(), 20);

@@ -3,7 +3,7 @@
 //! a consumer that went away is simply no longer sent to.
 
 use colslam_geometry::{Rigid3, Vec3};
-use std::sync::mpsc::{channel, Receiver, Sender};
+use std::sync::mpsc::{Receiver, Sender, channel};
 
 /// One event of a run.
 #[derive(Debug, Clone)]
@@ -111,10 +111,10 @@ impl EventSink {
 
     /// Sends an event; never blocks. Stops sending once the receiver is gone.
     pub fn send(&mut self, event: SlamEvent) {
-        if let Some(tx) = &self.tx {
-            if tx.send(event).is_err() {
-                self.tx = None;
-            }
+        if let Some(tx) = &self.tx
+            && tx.send(event).is_err()
+        {
+            self.tx = None;
         }
     }
 }

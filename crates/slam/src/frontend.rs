@@ -4,13 +4,13 @@
 use crate::{SlamError, SlamOptions};
 use colslam_camera::{Camera, PixelConvention};
 use colslam_features::{
-    extractor_by_name, matcher_by_name, Descriptors, ExtractorOptions, FeatureError, FeatureExtractor, Features, Match,
-    Matcher, MatcherOptions,
+    Descriptors, ExtractorOptions, FeatureError, FeatureExtractor, Features, Match, Matcher, MatcherOptions,
+    extractor_by_name, matcher_by_name,
 };
-use colslam_xfeat::{LighterGlue, LighterGlueOptions, MnnCosineMatcher, MnnCosineOptions, XFeat, XFeatOptions};
 use colslam_geometry::Vec2;
 use colslam_image::Image;
 use colslam_io::Frame;
+use colslam_xfeat::{LighterGlue, LighterGlueOptions, MnnCosineMatcher, MnnCosineOptions, XFeat, XFeatOptions};
 
 /// A frame's features, ready for mapping.
 #[derive(Debug, Clone)]

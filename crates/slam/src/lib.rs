@@ -20,6 +20,6 @@ pub mod timing;
 pub use error::SlamError;
 pub use events::{EventPoint, EventSink, SlamEvent};
 pub use options::SlamOptions;
-pub use output::{write_outputs, write_report, OutputFormat, RunReport};
+pub use output::{OutputFormat, RunReport, write_outputs, write_report};
 pub use pipeline::{FrameInfo, MapResult, Slam, SlamResult};
 pub use timing::{Stage, StageTimings};

@@ -2,17 +2,17 @@
 //! keyframe by keyframe (paper 3.3-3.6), and the records of the non-keyframes
 //! that are localised against it at the end.
 
+use crate::SlamOptions;
 use crate::frontend::FrameData;
 use crate::timing::{Stage, StageTimings};
-use crate::SlamOptions;
 use colslam_estimators::{
-    essential_from_pose, estimate_absolute_pose, estimate_two_view_geometry, sampson_error_sq, AbsolutePoseOptions,
-    RansacOptions, TwoViewConfig, TwoViewGeometryOptions,
+    AbsolutePoseOptions, RansacOptions, TwoViewConfig, TwoViewGeometryOptions, essential_from_pose,
+    estimate_absolute_pose, estimate_two_view_geometry, sampson_error_sq,
 };
 use colslam_features::Match;
 use colslam_geometry::{Rigid3, Vec2, Vec3};
 use colslam_scene::{CameraId, Image, ImageId, Point3DId, Reconstruction, TrackElement};
-use colslam_sfm::bundle::{adjust_global, adjust_local, BundleOptions};
+use colslam_sfm::bundle::{BundleOptions, adjust_global, adjust_local};
 use colslam_sfm::triangulator::{complete_and_merge_all, complete_and_merge_image, retriangulate, triangulate_image};
 use colslam_sfm::{CorrespondenceGraph, SfmError, TriangulatorOptions};
 use rayon::prelude::*;
@@ -205,7 +205,8 @@ impl MapState {
         // COLMAP tries several first images; two are enough to leave a
         // clearly bad window quickly.
         for &(first, _) in firsts.iter().take(2) {
-            let mut seconds: Vec<usize> = (0..n).filter(|&j| j != first && count(first, j) >= opts.init_min_inliers).collect();
+            let mut seconds: Vec<usize> =
+                (0..n).filter(|&j| j != first && count(first, j) >= opts.init_min_inliers).collect();
             // Video: the frames with the most matches are the nearest, with
             // the least parallax; among those matched well enough, try the
             // farthest in time first.
@@ -214,7 +215,8 @@ impl MapState {
             for second in seconds {
                 let (i, j) = if first < second { (first, second) } else { (second, first) };
                 let Some(matches) = pair_matches.get(&(i, j)) else { continue };
-                let Some(tvg) = two_view(&window[i], &window[j], matches, focal, opts.seed, INIT_TWO_VIEW_TRIALS) else {
+                let Some(tvg) = two_view(&window[i], &window[j], matches, focal, opts.seed, INIT_TWO_VIEW_TRIALS)
+                else {
                     continue;
                 };
                 tracing::trace!(
@@ -327,10 +329,13 @@ impl MapState {
 
     /// Global bundle adjustment, then normalisation, merge/complete of all
     /// tracks and filtering (paper 3.6).
-    pub fn global_ba(&mut self, opts: &SlamOptions, timings: &mut StageTimings) -> Result<colslam_optim::BaReport, SfmError> {
-        let report = timings.time(Stage::GlobalBa, || {
-            adjust_global(&mut self.rec, opts.refine_intrinsics, &BundleOptions::global())
-        })?;
+    pub fn global_ba(
+        &mut self,
+        opts: &SlamOptions,
+        timings: &mut StageTimings,
+    ) -> Result<colslam_optim::BaReport, SfmError> {
+        let report = timings
+            .time(Stage::GlobalBa, || adjust_global(&mut self.rec, opts.refine_intrinsics, &BundleOptions::global()))?;
         tracing::debug!(
             "map {}: global BA over {} images / {} points: cost {:.4e} -> {:.4e} in {} iterations ({:?})",
             self.index,
@@ -541,9 +546,9 @@ impl MapState {
                     n += 1;
                 }
             }
-            if n > 0 {
-                // The mean of u8 values fits in u8.
-                updates.push((pid, [(sum[0] / n) as u8, (sum[1] / n) as u8, (sum[2] / n) as u8]));
+            // The mean of u8 values fits in u8.
+            if let (Some(r), Some(g), Some(b)) = (sum[0].checked_div(n), sum[1].checked_div(n), sum[2].checked_div(n)) {
+                updates.push((pid, [r as u8, g as u8, b as u8]));
             }
         }
         for (pid, c) in updates {

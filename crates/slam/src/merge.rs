@@ -14,7 +14,7 @@ use crate::frontend::{FrameData, Frontend};
 use crate::map::{FrameRecord, Keyframe, MapState};
 use crate::timing::{Stage, StageTimings};
 use crate::{SlamError, SlamOptions};
-use colslam_geometry::{umeyama, Sim3, SplitMix64, Vec2, Vec3};
+use colslam_geometry::{Sim3, SplitMix64, Vec2, Vec3, umeyama};
 use colslam_scene::{Image, ImageId, Point3DId, TrackElement};
 use std::collections::{BTreeMap, HashMap};
 
@@ -28,6 +28,11 @@ const MERGE_RANSAC_ITERATIONS: usize = 400;
 const MERGE_MAX_REPROJ_PX: f64 = 8.0;
 /// Inlier correspondences needed to merge two maps.
 const MERGE_MIN_INLIERS: usize = 30;
+/// Mixed into the run's seed for the similarity RANSAC ("merge" in ASCII).
+const MERGE_SEED: u64 = 0x6d_6572_6765;
+/// Keypoint matches between a keyframe of the source map and one of the
+/// target map: (source image, target image, (source kp, target kp) pairs).
+type CrossMatches = (ImageId, ImageId, Vec<(u32, u32)>);
 /// Keyframes nearest in time an orphan frame is matched against.
 const RELOCALIZE_NEIGHBOURS: usize = 5;
 
@@ -44,11 +49,8 @@ struct Pair {
 
 /// Keyframes of `map` nearest in frame index to `frame`, nearest first.
 fn nearest_keyframes(map: &MapState, frame: usize, k: usize) -> Vec<&Keyframe> {
-    let mut kfs: Vec<&Keyframe> = map
-        .keyframes
-        .iter()
-        .filter(|kf| map.rec.image(kf.image_id).is_some_and(|i| i.registered))
-        .collect();
+    let mut kfs: Vec<&Keyframe> =
+        map.keyframes.iter().filter(|kf| map.rec.image(kf.image_id).is_some_and(|i| i.registered)).collect();
     kfs.sort_by_key(|kf| (kf.data.index.abs_diff(frame), kf.data.index));
     kfs.truncate(k);
     kfs
@@ -73,7 +75,7 @@ pub fn try_merge(
     let mut ends: Vec<&Keyframe> = source.keyframes.iter().take(MERGE_KEYFRAMES_PER_END).collect();
     ends.extend(source.keyframes.iter().skip(n.saturating_sub(MERGE_KEYFRAMES_PER_END).max(MERGE_KEYFRAMES_PER_END)));
     let mut pairs = Vec::new();
-    let mut cross: Vec<(ImageId, ImageId, Vec<(u32, u32)>)> = Vec::new();
+    let mut cross: Vec<CrossMatches> = Vec::new();
     for kb in ends {
         for ka in nearest_keyframes(target, kb.data.index, MERGE_NEIGHBOURS) {
             let matches = timings.time(Stage::Matching, || frontend.match_frames(&kb.data, &ka.data))?;
@@ -109,7 +111,7 @@ pub fn try_merge(
         let x = img.cam_from_world.transform_point(&s.transform_point(&p.source_xyz));
         cam.camera.img_from_cam(&x).is_some_and(|px| (px - p.target_pixel).norm() <= MERGE_MAX_REPROJ_PX)
     };
-    let mut rng = SplitMix64::new(opts.seed ^ 0x6d65_7267_65);
+    let mut rng = SplitMix64::new(opts.seed ^ MERGE_SEED);
     let mut best: Option<(usize, Sim3)> = None;
     for _ in 0..MERGE_RANSAC_ITERATIONS {
         let idx = [rng.below(pairs.len()), rng.below(pairs.len()), rng.below(pairs.len())];
@@ -136,7 +138,10 @@ pub fn try_merge(
     let inliers: Vec<&Pair> = pairs.iter().filter(|p| is_inlier(&s0, p)).collect();
     let src: Vec<Vec3> = inliers.iter().map(|p| p.source_xyz).collect();
     let dst: Vec<Vec3> = inliers.iter().map(|p| p.target_xyz).collect();
-    let sim = umeyama(&src, &dst, true).ok().filter(|s| inliers.iter().filter(|p| is_inlier(s, p)).count() >= count).unwrap_or(s0);
+    let sim = umeyama(&src, &dst, true)
+        .ok()
+        .filter(|s| inliers.iter().filter(|p| is_inlier(s, p)).count() >= count)
+        .unwrap_or(s0);
     let merged_pairs: Vec<(Point3DId, Point3DId)> =
         pairs.iter().filter(|p| is_inlier(&sim, p)).map(|p| (p.target_point, p.source_point)).collect();
     join(target, source, &sim, &cross, &merged_pairs)?;
@@ -158,7 +163,7 @@ fn join(
     target: &mut MapState,
     source: &MapState,
     sim: &Sim3,
-    cross: &[(ImageId, ImageId, Vec<(u32, u32)>)],
+    cross: &[CrossMatches],
     merged_pairs: &[(Point3DId, Point3DId)],
 ) -> Result<(), SlamError> {
     let mut src = source.rec.clone();
@@ -167,7 +172,8 @@ fn join(
     for id in src.registered_image_ids().to_vec() {
         let Some(img) = src.image(id) else { continue };
         let new_id = target.rec.next_image_id();
-        let mut copy = Image::new(new_id, img.name.clone(), target.camera_id, img.points2d.iter().map(|p| p.xy).collect());
+        let mut copy =
+            Image::new(new_id, img.name.clone(), target.camera_id, img.points2d.iter().map(|p| p.xy).collect());
         copy.cam_from_world = img.cam_from_world;
         target.rec.add_image(copy)?;
         target.rec.register_image(new_id)?;

@@ -139,10 +139,9 @@ impl SlamOptions {
         if !(self.global_ba_growth > 1.0 && self.global_ba_growth.is_finite()) {
             return Err(invalid("global-ba-growth", self.global_ba_growth, "must be greater than 1"));
         }
-        for (name, v) in [
-            ("max-reproj-error", self.max_reproj_error_px),
-            ("abs-pose-max-error", self.abs_pose_max_error_px),
-        ] {
+        for (name, v) in
+            [("max-reproj-error", self.max_reproj_error_px), ("abs-pose-max-error", self.abs_pose_max_error_px)]
+        {
             if !(v > 0.0 && v.is_finite()) {
                 return Err(invalid(name, v, "must be positive"));
             }

@@ -6,7 +6,7 @@ use crate::pipeline::{FrameInfo, SlamResult};
 use crate::timing::StageTimings;
 use crate::{SlamError, SlamOptions};
 use colslam_eval::trajectory::Trajectory;
-use colslam_scene::{write_model, write_ply, ModelFormat};
+use colslam_scene::{ModelFormat, write_model, write_ply};
 use serde::Serialize;
 use std::path::Path;
 

@@ -5,11 +5,11 @@
 
 use crate::events::{EventPoint, EventSink, SlamEvent};
 use crate::frontend::{FrameData, Frontend};
-use crate::map::{two_view, FramePose, FrameRecord, MapState, RegisterFailure};
+use crate::map::{FramePose, FrameRecord, MapState, RegisterFailure, two_view};
 use crate::timing::{Stage, StageTimings};
 use crate::{SlamError, SlamOptions};
 use colslam_estimators::TwoViewConfig;
-use colslam_features::{flow_score, Match};
+use colslam_features::{Match, flow_score};
 use colslam_io::Frame;
 use rayon::prelude::*;
 use std::collections::HashMap;
@@ -110,7 +110,11 @@ impl std::fmt::Debug for Slam {
 impl Slam {
     /// A pipeline for a camera calibrated in OpenCV's pixel convention (as
     /// camera files give it), sending events to `events`.
-    pub fn new(opts: SlamOptions, camera_opencv: &colslam_camera::Camera, events: EventSink) -> Result<Self, SlamError> {
+    pub fn new(
+        opts: SlamOptions,
+        camera_opencv: &colslam_camera::Camera,
+        events: EventSink,
+    ) -> Result<Self, SlamError> {
         opts.validate()?;
         let frontend = Frontend::new(&opts, camera_opencv)?;
         Ok(Self {
@@ -148,7 +152,9 @@ impl Slam {
         let mut kfs: Vec<(f64, colslam_geometry::Rigid3)> = map
             .keyframes
             .iter()
-            .filter_map(|k| map.rec.image(k.image_id).filter(|i| i.registered).map(|i| (k.data.timestamp, i.cam_from_world)))
+            .filter_map(|k| {
+                map.rec.image(k.image_id).filter(|i| i.registered).map(|i| (k.data.timestamp, i.cam_from_world))
+            })
             .collect();
         kfs.sort_by(|a, b| a.0.total_cmp(&b.0));
         let est = colslam_eval::trajectory::Trajectory::from_cam_from_world(
@@ -229,7 +235,8 @@ impl Slam {
         let n = window.len();
         let pairs: Vec<(usize, usize)> = (0..n).flat_map(|i| (i + 1..n).map(move |j| (i, j))).collect();
         let frontend = &self.frontend;
-        let matched: Result<Vec<((usize, usize), Vec<Match>)>, SlamError> = self.timings.time(Stage::Matching, || {
+        type PairMatches = ((usize, usize), Vec<Match>);
+        let matched: Result<Vec<PairMatches>, SlamError> = self.timings.time(Stage::Matching, || {
             pairs.par_iter().map(|&(i, j)| Ok(((i, j), frontend.match_frames(&window[i], &window[j])?))).collect()
         });
         let pair_matches: HashMap<(usize, usize), Vec<Match>> = matched?.into_iter().collect();
@@ -321,8 +328,15 @@ impl Slam {
         let mut failed_attempt = false;
         if n >= self.opts.min_matches && flow.score > self.opts.flow_threshold {
             let rotation = self.opts.reject_pure_rotation
-                && two_view(&data, &kf.data, &matches, 0.5 * (fx + fy), self.opts.seed, crate::map::KEYFRAME_TWO_VIEW_TRIALS)
-                    .is_some_and(|g| g.config == TwoViewConfig::Panoramic);
+                && two_view(
+                    &data,
+                    &kf.data,
+                    &matches,
+                    0.5 * (fx + fy),
+                    self.opts.seed,
+                    crate::map::KEYFRAME_TWO_VIEW_TRIALS,
+                )
+                .is_some_and(|g| g.config == TwoViewConfig::Panoramic);
             self.timings.add(Stage::KeyframeTest, t0.elapsed());
             if rotation {
                 self.rejected_rotation += 1;
@@ -343,15 +357,15 @@ impl Slam {
                 if became {
                     self.forced_keyframes += 1;
                 }
-            } else if let Some((prev, prev_matches, rec_idx)) = self.prev.take() {
-                if self.try_keyframe(&prev, &prev_matches)? {
-                    self.forced_keyframes += 1;
-                    if let Some(r) = self.map.as_mut().and_then(|m| m.records.get_mut(rec_idx)) {
-                        r.promoted = true;
-                    }
-                    // Track this frame against the new keyframe instead.
-                    return self.track(data);
+            } else if let Some((prev, prev_matches, rec_idx)) = self.prev.take()
+                && self.try_keyframe(&prev, &prev_matches)?
+            {
+                self.forced_keyframes += 1;
+                if let Some(r) = self.map.as_mut().and_then(|m| m.records.get_mut(rec_idx)) {
+                    r.promoted = true;
                 }
+                // Track this frame against the new keyframe instead.
+                return self.track(data);
             }
         }
         self.send_frame_event(&data, &matches, flow.score, became);
@@ -513,11 +527,8 @@ impl Slam {
         }
         let Some(map) = self.map.as_mut() else { return };
         let current: std::collections::HashSet<colslam_scene::Point3DId> = map.rec.point3d_ids().into_iter().collect();
-        let removed: Vec<u64> = if full {
-            Vec::new()
-        } else {
-            map.sent_points.difference(&current).map(|p| p.0).collect()
-        };
+        let removed: Vec<u64> =
+            if full { Vec::new() } else { map.sent_points.difference(&current).map(|p| p.0).collect() };
         // Points of the newest keyframes moved in local BA; new points are
         // those not sent yet.
         let recent: std::collections::HashSet<colslam_scene::ImageId> =
@@ -588,8 +599,7 @@ impl Slam {
         }
         let mut maps = Vec::new();
         for mut map in kept {
-            let extra =
-                crate::merge::relocalization_records(&map, &self.orphans, &self.frontend, &mut self.timings)?;
+            let extra = crate::merge::relocalization_records(&map, &self.orphans, &self.frontend, &mut self.timings)?;
             let mut by_index: HashMap<usize, usize> =
                 map.records.iter().enumerate().map(|(i, r)| (r.index, i)).collect();
             for r in extra {

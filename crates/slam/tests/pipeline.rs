@@ -3,7 +3,7 @@
 //! panic).
 
 use colslam_eval::trajectory::Trajectory;
-use colslam_eval::{evaluate, EvalOptions};
+use colslam_eval::{EvalOptions, evaluate};
 use colslam_image::Image;
 use colslam_io::Frame;
 use colslam_slam::{EventSink, Slam, SlamEvent, SlamOptions, SlamResult};
@@ -146,6 +146,8 @@ fn wrong_frame_size_is_an_error_not_a_panic() {
     let mut slam = Slam::new(SlamOptions::default(), &synthetic_camera(), EventSink::none()).expect("options");
     let e = slam.process(&frame(0, Image::new(100, 50, 1))).unwrap_err().to_string();
     assert!(e.contains("100x50") && e.contains("320x240"), "{e}");
-    assert!(Slam::new(SlamOptions { min_matches: 0, ..SlamOptions::default() }, &synthetic_camera(), EventSink::none())
-        .is_err());
+    assert!(
+        Slam::new(SlamOptions { min_matches: 0, ..SlamOptions::default() }, &synthetic_camera(), EventSink::none())
+            .is_err()
+    );
 }

@@ -1,7 +1,7 @@
 //! Writes a synthetic sequence with default options, some overridable:
 //! `cargo run --release -p colslam-synth --example generate -- OUT [--frames N] [--seed S] [--blur E] [--noise SIGMA] [--distortion K1 K2 P1 P2]`.
 
-use colslam_synth::{generate, SynthOptions};
+use colslam_synth::{SynthOptions, generate};
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
     let args: Vec<String> = std::env::args().skip(1).collect();

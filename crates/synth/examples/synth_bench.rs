@@ -31,7 +31,14 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             img.write_png(std::path::Path::new(p))?;
         }
     }
-    println!("render {:.1} ms per frame ({}x{}, {}x{} supersampling)", t.elapsed().as_secs_f64() * 1e3 / frames as f64, opts.width, opts.height, opts.supersample, opts.supersample);
+    println!(
+        "render {:.1} ms per frame ({}x{}, {}x{} supersampling)",
+        t.elapsed().as_secs_f64() * 1e3 / frames as f64,
+        opts.width,
+        opts.height,
+        opts.supersample,
+        opts.supersample
+    );
     println!(
         "cpu {:.1} ms per frame (all threads; on 2 free cores the wall time is about half)",
         (cpu_seconds() - cpu0) * 1e3 / frames as f64

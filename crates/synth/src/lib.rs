@@ -164,7 +164,8 @@ impl SyntheticSequence {
     }
 
     fn noise_seed(&self, i: usize) -> u64 {
-        colslam_geometry::SplitMix64::new(self.opts.seed ^ 0x4E01_5E00_0000_0004 ^ (i as u64).rotate_left(32)).next_u64()
+        colslam_geometry::SplitMix64::new(self.opts.seed ^ 0x4E01_5E00_0000_0004 ^ (i as u64).rotate_left(32))
+            .next_u64()
     }
 
     /// Depth (camera z, metres) at every pixel centre of frame `i`, row-major

@@ -211,7 +211,9 @@ impl SynthOptions {
         check_finite_positive("fps", self.fps)?;
         check_finite_positive("focal", self.focal)?;
         if let Some(d) = &self.distortion {
-            for (name, v) in ["distortion.k1", "distortion.k2", "distortion.p1", "distortion.p2"].into_iter().zip(d.iter().copied()) {
+            for (name, v) in
+                ["distortion.k1", "distortion.k2", "distortion.p1", "distortion.p2"].into_iter().zip(d.iter().copied())
+            {
                 if !v.is_finite() || v.abs() > MAX_DISTORTION_COEFF {
                     return Err(invalid(name, v, &format!("must be finite with |value| <= {MAX_DISTORTION_COEFF}")));
                 }
@@ -219,7 +221,11 @@ impl SynthOptions {
         }
         check_finite_non_negative("noise_sigma", self.noise_sigma)?;
         if !self.motion_blur.is_finite() || !(0.0..=1.0).contains(&self.motion_blur) {
-            return Err(invalid("motion_blur", self.motion_blur, "must be an exposure fraction of the frame interval in [0, 1]"));
+            return Err(invalid(
+                "motion_blur",
+                self.motion_blur,
+                "must be an exposure fraction of the frame interval in [0, 1]",
+            ));
         }
         if self.blur_samples == 0 || self.blur_samples > MAX_BLUR_SAMPLES {
             return Err(invalid("blur_samples", self.blur_samples, &format!("must be in 1..={MAX_BLUR_SAMPLES}")));
@@ -232,7 +238,10 @@ impl SynthOptions {
             return Err(invalid(
                 "supersample",
                 self.supersample,
-                &format!("{}x{} pixels with {}x{} samples make {rays} rays per frame, more than {MAX_RAYS}", self.width, self.height, self.supersample, self.supersample),
+                &format!(
+                    "{}x{} pixels with {}x{} samples make {rays} rays per frame, more than {MAX_RAYS}",
+                    self.width, self.height, self.supersample, self.supersample
+                ),
             ));
         }
         for (i, (&v, &min)) in self.room_size.iter().zip(MIN_ROOM_SIZE.iter()).enumerate() {
@@ -246,7 +255,11 @@ impl SynthOptions {
             }
         }
         if !self.texel_size.is_finite() || !(MIN_TEXEL_SIZE..=MAX_TEXEL_SIZE).contains(&self.texel_size) {
-            return Err(invalid("texel_size", self.texel_size, &format!("must be in [{MIN_TEXEL_SIZE}, {MAX_TEXEL_SIZE}] metres")));
+            return Err(invalid(
+                "texel_size",
+                self.texel_size,
+                &format!("must be in [{MIN_TEXEL_SIZE}, {MAX_TEXEL_SIZE}] metres"),
+            ));
         }
         if self.clutter_boxes > MAX_CLUTTER_BOXES {
             return Err(invalid("clutter_boxes", self.clutter_boxes, &format!("must be at most {MAX_CLUTTER_BOXES}")));
@@ -258,7 +271,9 @@ impl SynthOptions {
             return Err(invalid(
                 "texel_size",
                 self.texel_size,
-                &format!("about {area:.0} m^2 of surfaces would need {texels:.3e} texels, more than {MAX_TEXELS:.0e}; use larger texels or a smaller room"),
+                &format!(
+                    "about {area:.0} m^2 of surfaces would need {texels:.3e} texels, more than {MAX_TEXELS:.0e}; use larger texels or a smaller room"
+                ),
             ));
         }
         check_finite_positive("path_length", self.path_length)?;
@@ -266,10 +281,18 @@ impl SynthOptions {
         check_finite_positive("camera_height", self.camera_height)?;
         let half_min = 0.5 * self.room_size[0].min(self.room_size[1]);
         if self.orbit_radius > half_min - 0.3 {
-            return Err(invalid("orbit_radius", self.orbit_radius, &format!("must leave 0.3 m to the walls: at most {}", half_min - 0.3)));
+            return Err(invalid(
+                "orbit_radius",
+                self.orbit_radius,
+                &format!("must leave 0.3 m to the walls: at most {}", half_min - 0.3),
+            ));
         }
         if self.orbit_radius < 1.0 {
-            return Err(invalid("orbit_radius", self.orbit_radius, "must be at least 1.0 m to clear the central table"));
+            return Err(invalid(
+                "orbit_radius",
+                self.orbit_radius,
+                "must be at least 1.0 m to clear the central table",
+            ));
         }
         if self.camera_height < 0.3 || self.camera_height > self.room_size[2] - 0.3 {
             return Err(invalid("camera_height", self.camera_height, "must leave 0.3 m to the floor and the ceiling"));
@@ -327,7 +350,8 @@ impl std::fmt::Display for SynthReport {
         if self.up_to_date {
             write!(f, "{} frames already present (up to date)", self.frames)?;
         } else {
-            let per_frame = if self.frames_written > 0 { 1e3 * self.render_seconds / self.frames_written as f64 } else { 0.0 };
+            let per_frame =
+                if self.frames_written > 0 { 1e3 * self.render_seconds / self.frames_written as f64 } else { 0.0 };
             write!(
                 f,
                 "{} frames written in {:.1} s (setup {:.1} s, {:.0} ms per frame)",
@@ -371,13 +395,7 @@ mod tests {
             (SynthOptions { texel_size: 0.001, room_size: [50.0, 50.0, 10.0], ..Default::default() }, "texel_size"),
             (SynthOptions { width: 8000, height: 8000, ..Default::default() }, "rays per frame"),
             (SynthOptions { orbit_radius: 5.0, ..Default::default() }, "orbit_radius"),
-            (
-                SynthOptions {
-                    distortion: Some([f64::INFINITY, 0.0, 0.0, 0.0]),
-                    ..Default::default()
-                },
-                "distortion.k1",
-            ),
+            (SynthOptions { distortion: Some([f64::INFINITY, 0.0, 0.0, 0.0]), ..Default::default() }, "distortion.k1"),
         ];
         for (opts, name) in cases {
             let e = opts.validate().unwrap_err().to_string();

@@ -100,7 +100,17 @@ fn groundtruth_txt(seq: &SyntheticSequence) -> String {
     for (i, p) in seq.world_from_cam().iter().enumerate() {
         let t = p.translation;
         let q = p.quat_xyzw();
-        s.push_str(&format!("{} {:?} {:?} {:?} {:?} {:?} {:?} {:?}\n", timestamp(i, fps), t.x, t.y, t.z, q[0], q[1], q[2], q[3]));
+        s.push_str(&format!(
+            "{} {:?} {:?} {:?} {:?} {:?} {:?} {:?}\n",
+            timestamp(i, fps),
+            t.x,
+            t.y,
+            t.z,
+            q[0],
+            q[1],
+            q[2],
+            q[3]
+        ));
     }
     s
 }
@@ -143,7 +153,10 @@ fn remove_stale_frames(rgb: &Path, frames: usize) -> Result<(), SynthError> {
         let name = entry.file_name();
         let name = name.to_string_lossy();
         let Some(stem) = name.strip_suffix(".png") else { continue };
-        if stem.len() == 6 && stem.bytes().all(|b| b.is_ascii_digit()) && stem.parse::<usize>().is_ok_and(|k| k >= frames) {
+        if stem.len() == 6
+            && stem.bytes().all(|b| b.is_ascii_digit())
+            && stem.parse::<usize>().is_ok_and(|k| k >= frames)
+        {
             let p = entry.path();
             std::fs::remove_file(&p).map_err(|e| SynthError::io(&p, e))?;
         }
@@ -155,7 +168,11 @@ fn remove_stale_frames(rgb: &Path, frames: usize) -> Result<(), SynthError> {
 /// already holds a complete sequence with the same options is left as is
 /// (the report then says `up_to_date` and `frames_written = 0`); anything
 /// else is (re)written. `progress(done, total)` is called after each frame.
-pub fn generate(opts: &SynthOptions, out: &Path, progress: Option<&dyn Fn(usize, usize)>) -> Result<SynthReport, SynthError> {
+pub fn generate(
+    opts: &SynthOptions,
+    out: &Path,
+    progress: Option<&dyn Fn(usize, usize)>,
+) -> Result<SynthReport, SynthError> {
     let start = Instant::now();
     opts.validate()?;
     let extent = {
@@ -252,7 +269,8 @@ pub fn generate(opts: &SynthOptions, out: &Path, progress: Option<&dyn Fn(usize,
         boxes: seq.scene().boxes().iter().map(BoxDescription::from).collect(),
         options: opts.clone(),
     };
-    let json = serde_json::to_string_pretty(&desc).map_err(|source| SynthError::Json { path: marker.clone(), source })?;
+    let json =
+        serde_json::to_string_pretty(&desc).map_err(|source| SynthError::Json { path: marker.clone(), source })?;
     write_text(&marker, &json)?;
     write_seconds += t_write.elapsed().as_secs_f64();
 

@@ -147,7 +147,8 @@ impl Trajectory {
             self.rotation_jitter[1].eval(t),
             self.rotation_jitter[2].eval(t),
         );
-        let r = Quat::from_rotation_matrix(&colslam_geometry::nalgebra::Rotation3::from_matrix_unchecked(look)) * jitter;
+        let r =
+            Quat::from_rotation_matrix(&colslam_geometry::nalgebra::Rotation3::from_matrix_unchecked(look)) * jitter;
         Rigid3::new(r, c)
     }
 }

@@ -14,7 +14,7 @@ use colslam_image::Image;
 use rayon::prelude::*;
 
 use crate::options::{SynthError, SynthOptions};
-use crate::scene::{slab, Hit, Scene, FACES_PER_BOX};
+use crate::scene::{FACES_PER_BOX, Hit, Scene, slab};
 
 /// Samples behind the camera plane closer than this (metres, camera z) make
 /// a box's screen-space bound unbounded (it is then tested for every ray).
@@ -26,7 +26,12 @@ pub fn make_camera(opts: &SynthOptions) -> Result<Camera, SynthError> {
     let (w, h) = (opts.width as f64, opts.height as f64);
     let (cx, cy) = ((w - 1.0) / 2.0, (h - 1.0) / 2.0);
     let cam = match &opts.distortion {
-        None => Camera::new(CameraModelId::Pinhole, opts.width as u64, opts.height as u64, vec![opts.focal, opts.focal, cx, cy]),
+        None => Camera::new(
+            CameraModelId::Pinhole,
+            opts.width as u64,
+            opts.height as u64,
+            vec![opts.focal, opts.focal, cx, cy],
+        ),
         Some(d) => Camera::new(
             CameraModelId::OpenCv,
             opts.width as u64,
@@ -87,7 +92,9 @@ impl RayTable {
             .collect::<Result<_, _>>()?;
         let row_y = xy
             .chunks_exact(sw * ss)
-            .map(|rows| rows.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), p| (lo.min(p[1]), hi.max(p[1]))))
+            .map(|rows| {
+                rows.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), p| (lo.min(p[1]), hi.max(p[1])))
+            })
             .collect();
         Ok(RayTable { width, ss, xy, row_y, centers })
     }

@@ -432,7 +432,11 @@ mod tests {
         assert!(s.boxes().len() >= 20, "{} boxes", s.boxes().len());
         for (i, a) in s.boxes().iter().enumerate() {
             for k in 0..3 {
-                assert!(a.aabb.min[k] >= s.room().min[k] - 1e-12 && a.aabb.max[k] <= s.room().max[k] + 1e-12, "{}", a.name);
+                assert!(
+                    a.aabb.min[k] >= s.room().min[k] - 1e-12 && a.aabb.max[k] <= s.room().max[k] + 1e-12,
+                    "{}",
+                    a.name
+                );
                 assert!(a.aabb.min[k] < a.aabb.max[k]);
             }
             for b in &s.boxes()[i + 1..] {
@@ -448,11 +452,8 @@ mod tests {
         let o = Vec3::new(0.0, -2.0, 1.4);
         // Aim at the centre of the top face of the table top.
         let table = s.boxes()[0].aabb;
-        let target = Vec3::new(
-            0.5 * (table.min[0] + table.max[0]),
-            0.5 * (table.min[1] + table.max[1]) - 0.3,
-            table.max[2],
-        );
+        let target =
+            Vec3::new(0.5 * (table.min[0] + table.max[0]), 0.5 * (table.min[1] + table.max[1]) - 0.3, table.max[2]);
         let d = target - o;
         let hit = s.cast(&o, &d);
         assert!((hit.t - 1.0).abs() < 1e-12, "t = {}", hit.t);

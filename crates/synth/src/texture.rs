@@ -166,7 +166,8 @@ impl Texture {
         let ax = (fx - x0 as f64) as f32;
         let ay = (fy - y0 as f64) as f32;
         let i00 = y0 * self.tw + x0;
-        let (p00, p10, p01, p11) = (self.data[i00], self.data[i00 + 1], self.data[i00 + self.tw], self.data[i00 + self.tw + 1]);
+        let (p00, p10, p01, p11) =
+            (self.data[i00], self.data[i00 + 1], self.data[i00 + self.tw], self.data[i00 + self.tw + 1]);
         let mut out = [0f32; 3];
         for c in 0..3 {
             let (a, b, cc, d) = (p00[c] as f32, p10[c] as f32, p01[c] as f32, p11[c] as f32);
@@ -233,9 +234,8 @@ fn segment_distance(x: f64, y: f64, s: &[f64; 4]) -> f64 {
 /// A 64-bit integer hash (the SplitMix64 finaliser) of a lattice point.
 #[inline]
 fn hash3(ix: i64, iy: i64, seed: u64) -> u64 {
-    let mut z = seed
-        ^ (ix as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15)
-        ^ (iy as u64).wrapping_mul(0xC2B2_AE3D_27D4_EB4F);
+    let mut z =
+        seed ^ (ix as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ (iy as u64).wrapping_mul(0xC2B2_AE3D_27D4_EB4F);
     z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
     z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
     z ^ (z >> 31)
@@ -369,7 +369,8 @@ mod tests {
     #[test]
     fn texture_has_contrast() {
         let t = Texture::bake(1.0, 1.0, 0.005, 9);
-        let lum: Vec<f32> = t.data.iter().map(|p| 0.299 * p[0] as f32 + 0.587 * p[1] as f32 + 0.114 * p[2] as f32).collect();
+        let lum: Vec<f32> =
+            t.data.iter().map(|p| 0.299 * p[0] as f32 + 0.587 * p[1] as f32 + 0.114 * p[2] as f32).collect();
         let mean = lum.iter().sum::<f32>() / lum.len() as f32;
         let var = lum.iter().map(|l| (l - mean).powi(2)).sum::<f32>() / lum.len() as f32;
         assert!(var.sqrt() > 30.0, "luminance std {}", var.sqrt());

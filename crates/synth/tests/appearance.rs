@@ -59,7 +59,8 @@ fn seeds_change_scene_and_path() {
     let a = SyntheticSequence::new(&SynthOptions { noise_sigma: 0.0, ..small_opts(2, 160, 120) }).unwrap();
     let b = SyntheticSequence::new(&SynthOptions { noise_sigma: 0.0, seed: 7, ..small_opts(2, 160, 120) }).unwrap();
     let (ia, ib) = (a.render(0).unwrap(), b.render(0).unwrap());
-    let mad = ia.data().iter().zip(ib.data()).map(|(x, y)| (*x as f64 - *y as f64).abs()).sum::<f64>() / ia.data().len() as f64;
+    let mad = ia.data().iter().zip(ib.data()).map(|(x, y)| (*x as f64 - *y as f64).abs()).sum::<f64>()
+        / ia.data().len() as f64;
     assert!(mad > 20.0, "mean abs difference {mad}");
     assert_ne!(a.world_from_cam()[0], b.world_from_cam()[0]);
     // Same seed: identical render.
@@ -86,7 +87,9 @@ fn full_default_sequence_is_feature_rich() {
         worst_block = worst_block.min(min_block_std(&img, 2 * BLOCK));
     }
     let ms = t.elapsed().as_secs_f64() * 1e3 / seq.num_frames() as f64;
-    eprintln!("{ms:.1} ms per frame (render + checks); worst strong-gradient share {worst_share:.3}, least textured 64px block std {worst_block:.2}");
+    eprintln!(
+        "{ms:.1} ms per frame (render + checks); worst strong-gradient share {worst_share:.3}, least textured 64px block std {worst_block:.2}"
+    );
     // Full resolution magnifies the textures (5 mm texels are ~2 px at
     // 1.2 m), so the per-pixel gradients are weaker than at half size.
     assert!(worst_share > 0.2, "strong-gradient share {worst_share}");

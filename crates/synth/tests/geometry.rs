@@ -163,7 +163,10 @@ fn depth_and_colour_match_brute_force(distortion: Option<Distortion>) {
                 for (k, ck) in c.iter().enumerate() {
                     let expected = ck.round().clamp(0.0, 255.0);
                     let got = img.get(i, j, k) as f32;
-                    assert!((got - expected).abs() <= 1.0, "frame {frame} pixel ({i}, {j}) channel {k}: {got} vs {expected}");
+                    assert!(
+                        (got - expected).abs() <= 1.0,
+                        "frame {frame} pixel ({i}, {j}) channel {k}: {got} vs {expected}"
+                    );
                 }
                 checked += 1;
             }

@@ -89,7 +89,9 @@ fn orb_tracks_and_two_view_initialisation_recovers_the_pose() {
         let gt_sampson = pr["gt_sampson_median"].as_f64().unwrap();
         let gt_inliers = pr["gt_inliers"].as_u64().unwrap();
         let est_sampson = pr["est_sampson_median"].as_f64().unwrap();
-        eprintln!("pair {a}-{b}: {matches} matches, {inliers} inliers, {gt_inliers} within 1 px of the true epipolar geometry (median Sampson error of inliers {gt_sampson:.3} px; under the estimate {est_sampson:.3} px), {pose_inliers} in front, rotation error {rot_err:.3} deg, translation direction error {t_err:.2} deg");
+        eprintln!(
+            "pair {a}-{b}: {matches} matches, {inliers} inliers, {gt_inliers} within 1 px of the true epipolar geometry (median Sampson error of inliers {gt_sampson:.3} px; under the estimate {est_sampson:.3} px), {pose_inliers} in front, rotation error {rot_err:.3} deg, translation direction error {t_err:.2} deg"
+        );
         // Tracking (3 frames apart) keeps most features; an initialisation
         // pair (1 s, ~30 cm apart) still has hundreds of inliers.
         let min_inliers = if b - a <= 3 { 800 } else { 300 };
@@ -100,7 +102,10 @@ fn orb_tracks_and_two_view_initialisation_recovers_the_pose() {
         assert!(gt_sampson < 0.6, "pair {a}-{b}: median Sampson error {gt_sampson} px under the ground truth");
         // The ground truth explains the matches about as well as the model
         // fitted to them (a wrong pose, camera or pixel offset would not).
-        assert!(gt_sampson < 1.25 * est_sampson, "pair {a}-{b}: Sampson error {gt_sampson} px under the ground truth vs {est_sampson} px under the estimate");
+        assert!(
+            gt_sampson < 1.25 * est_sampson,
+            "pair {a}-{b}: Sampson error {gt_sampson} px under the ground truth vs {est_sampson} px under the estimate"
+        );
         assert!(inliers as f64 > 0.5 * matches as f64, "pair {a}-{b}: inlier ratio {inliers}/{matches}");
         if gt.translation.norm() > 0.2 {
             // A wide baseline (the initialisation case): the relative pose is

@@ -4,7 +4,7 @@ mod common;
 
 use std::path::Path;
 
-use colslam_synth::{generate, Distortion, SynthError, SynthOptions, SyntheticSequence};
+use colslam_synth::{Distortion, SynthError, SynthOptions, SyntheticSequence, generate};
 
 fn tiny(seed: u64) -> SynthOptions {
     SynthOptions { seed, texel_size: 0.02, ..common::small_opts(4, 96, 72) }
@@ -14,7 +14,8 @@ fn files(dir: &Path) -> Vec<(String, Vec<u8>)> {
     let mut out = Vec::new();
     for sub in ["", "rgb"] {
         let d = dir.join(sub);
-        let mut names: Vec<_> = std::fs::read_dir(&d).unwrap().map(|e| e.unwrap().path()).filter(|p| p.is_file()).collect();
+        let mut names: Vec<_> =
+            std::fs::read_dir(&d).unwrap().map(|e| e.unwrap().path()).filter(|p| p.is_file()).collect();
         names.sort();
         for p in names {
             out.push((p.strip_prefix(dir).unwrap().display().to_string(), std::fs::read(&p).unwrap()));
@@ -126,7 +127,8 @@ fn folder_reads_as_tum() {
     assert_eq!(&cam.camera, seq.camera());
     assert_eq!(cam.fps, Some(opts.fps));
     // scene.json: extent, seed, options.
-    let json: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(dir.path().join("scene.json")).unwrap()).unwrap();
+    let json: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.path().join("scene.json")).unwrap()).unwrap();
     assert_eq!(json["seed"], 4);
     assert_eq!(json["options"]["frames"], 4);
     assert!((json["scene_diagonal"].as_f64().unwrap() - report.scene_diagonal).abs() < 1e-12);

@@ -93,7 +93,8 @@ fn trajectory_is_deterministic_and_seeded() {
 fn any_seed_gives_a_collision_free_path() {
     // Coarse textures and a tiny image: only the layout and the path matter.
     for seed in 0..60 {
-        let opts = SynthOptions { seed, texel_size: 0.1, width: 16, height: 12, focal: 13.0, ..SynthOptions::default() };
+        let opts =
+            SynthOptions { seed, texel_size: 0.1, width: 16, height: 12, focal: 13.0, ..SynthOptions::default() };
         if let Err(e) = SyntheticSequence::new(&opts) {
             panic!("seed {seed}: {e}");
         }

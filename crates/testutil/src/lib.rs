@@ -14,9 +14,10 @@ use std::process::Command;
 
 /// The workspace root (two levels above this crate).
 pub fn workspace_root() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("../..").canonicalize().unwrap_or_else(|_| {
-        Path::new(env!("CARGO_MANIFEST_DIR")).join("../..")
-    })
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../..")
+        .canonicalize()
+        .unwrap_or_else(|_| Path::new(env!("CARGO_MANIFEST_DIR")).join("../.."))
 }
 
 /// True when running in CI (`CI=true`), where nothing may be skipped.
@@ -65,19 +66,12 @@ pub fn peer_python(modules: &[&str]) -> Option<PathBuf> {
         None => workspace_root().join(".venv/bin/python"),
     };
     let import = format!("import {}", if modules.is_empty() { "sys".to_string() } else { modules.join(", ") });
-    let ok = py.exists()
-        && Command::new(&py)
-            .args(["-c", &import])
-            .output()
-            .map(|o| o.status.success())
-            .unwrap_or(false);
+    let ok =
+        py.exists() && Command::new(&py).args(["-c", &import]).output().map(|o| o.status.success()).unwrap_or(false);
     if ok {
         Some(py)
     } else {
-        skip_or_fail(&format!(
-            "peer Python {} cannot `{import}` (run scripts/setup-peers.sh)",
-            py.display()
-        ));
+        skip_or_fail(&format!("peer Python {} cannot `{import}` (run scripts/setup-peers.sh)", py.display()));
         None
     }
 }
@@ -86,11 +80,6 @@ pub fn peer_python(modules: &[&str]) -> Option<PathBuf> {
 /// returns its stdout; panics with stderr on failure.
 pub fn run_python(py: &Path, args: &[&str]) -> String {
     let out = Command::new(py).args(args).output().expect("spawn python");
-    assert!(
-        out.status.success(),
-        "python {:?} failed:\n{}",
-        args,
-        String::from_utf8_lossy(&out.stderr)
-    );
+    assert!(out.status.success(), "python {:?} failed:\n{}", args, String::from_utf8_lossy(&out.stderr));
     String::from_utf8_lossy(&out.stdout).into_owned()
 }

@@ -139,7 +139,8 @@ pub(crate) fn read_request(r: &mut impl BufRead) -> Result<Request, BadRequest> 
     let mut head = Vec::new();
     loop {
         let mut line = Vec::new();
-        let n = r.by_ref().take((MAX_HEAD_BYTES + 1 - head.len().min(MAX_HEAD_BYTES)) as u64).read_until(b'\n', &mut line);
+        let n =
+            r.by_ref().take((MAX_HEAD_BYTES + 1 - head.len().min(MAX_HEAD_BYTES)) as u64).read_until(b'\n', &mut line);
         let n = n.map_err(|e| bad(400, format!("cannot read request: {e}")))?;
         if n == 0 {
             return Err(bad(400, "connection closed before the request ended"));
@@ -203,7 +204,10 @@ pub(crate) fn percent_decode(s: &str) -> String {
                 i += 1;
             }
             b'%' => {
-                let hex = b.get(i + 1..i + 3).and_then(|h| std::str::from_utf8(h).ok()).and_then(|h| u8::from_str_radix(h, 16).ok());
+                let hex = b
+                    .get(i + 1..i + 3)
+                    .and_then(|h| std::str::from_utf8(h).ok())
+                    .and_then(|h| u8::from_str_radix(h, 16).ok());
                 match hex {
                     Some(v) => {
                         out.push(v);
@@ -302,9 +306,7 @@ fn check_origin(req: &Request, loopback: bool) -> Result<(), BadRequest> {
         }
     }
     if let Some(origin) = req.header("origin") {
-        let same = host.is_some_and(|h| {
-            origin.strip_prefix("http://").is_some_and(|o| o.eq_ignore_ascii_case(h))
-        });
+        let same = host.is_some_and(|h| origin.strip_prefix("http://").is_some_and(|o| o.eq_ignore_ascii_case(h)));
         if !same {
             return Err(bad(403, format!("cross-origin request from {origin:?} refused")));
         }
@@ -345,7 +347,8 @@ fn route(s: &mut TcpStream, req: &Request, shared: &Shared) -> std::io::Result<(
 /// `GET /api/state`: the full state, or with `?epoch=E&since=V` what changed
 /// after version V (a full state when E is not the current epoch).
 fn api_state(s: &mut TcpStream, req: &Request, shared: &Shared) -> std::io::Result<()> {
-    let parse = |k: &str| req.param(k).map(|v| v.parse::<u64>().map_err(|_| format!("{k} must be a number, got {v:?}")));
+    let parse =
+        |k: &str| req.param(k).map(|v| v.parse::<u64>().map_err(|_| format!("{k} must be a number, got {v:?}")));
     let (epoch, since) = match (parse("epoch").transpose(), parse("since").transpose()) {
         (Ok(e), Ok(v)) => (e, v),
         (Err(e), _) | (_, Err(e)) => return respond_error(s, 400, &e),
@@ -520,9 +523,8 @@ fn api_export(s: &mut TcpStream, req: &Request, shared: &Shared) -> std::io::Res
     let parsed = json_body(req).and_then(|v| {
         let path = path_field(&v, "path")?;
         let fmt = v.get("format").and_then(Value::as_str).unwrap_or("");
-        let fmt = ExportFormat::from_name(fmt).ok_or_else(|| {
-            format!("unknown export format {fmt:?} (expected colmap-bin, colmap-txt, ply or tum)")
-        })?;
+        let fmt = ExportFormat::from_name(fmt)
+            .ok_or_else(|| format!("unknown export format {fmt:?} (expected colmap-bin, colmap-txt, ply or tum)"))?;
         Ok((path, fmt))
     });
     let (path, format) = match parsed {

@@ -401,7 +401,10 @@ mod tests {
         }));
         assert_eq!(st.delta_json(mid)["full"], true, "a client older than the drop gets everything");
         let now = st.version;
-        st.apply(ViewerUpdate::MapDelta(MapDelta { removed_points: vec![MAX_TOMBSTONES as u64 + 6], ..Default::default() }));
+        st.apply(ViewerUpdate::MapDelta(MapDelta {
+            removed_points: vec![MAX_TOMBSTONES as u64 + 6],
+            ..Default::default()
+        }));
         let d = st.delta_json(now);
         assert_eq!(d["full"], false);
         assert_eq!(d["removed_points"], serde_json::json!([MAX_TOMBSTONES as u64 + 6]));

@@ -120,7 +120,8 @@ fn bad_requests_get_4xx() {
     let port = v.local_addr().port();
     let evil_host = format!("GET /api/state HTTP/1.1\r\nHost: evil.example:{port}\r\n\r\n");
     assert_eq!(raw(&v, evil_host.as_bytes()).0, 403);
-    let evil_origin = format!("GET /api/state HTTP/1.1\r\nHost: 127.0.0.1:{port}\r\nOrigin: http://evil.example\r\n\r\n");
+    let evil_origin =
+        format!("GET /api/state HTTP/1.1\r\nHost: 127.0.0.1:{port}\r\nOrigin: http://evil.example\r\n\r\n");
     assert_eq!(raw(&v, evil_origin.as_bytes()).0, 403);
     let same_origin =
         format!("GET /api/state HTTP/1.1\r\nHost: 127.0.0.1:{port}\r\nOrigin: http://127.0.0.1:{port}\r\n\r\n");
@@ -154,7 +155,8 @@ fn snapshot_and_increments() {
     // Tracks: three observers per point, flattened.
     assert_eq!(full["points"]["track"].as_array().map(Vec::len), Some(150));
     // Orders are the registration order.
-    let orders: Vec<u64> = full["cameras"].as_array().into_iter().flatten().filter_map(|c| c["order"].as_u64()).collect();
+    let orders: Vec<u64> =
+        full["cameras"].as_array().into_iter().flatten().filter_map(|c| c["order"].as_u64()).collect();
     assert_eq!(orders, vec![0, 1, 2, 3]);
     let (epoch, version) = (full["epoch"].as_u64().unwrap_or(0), full["version"].as_u64().unwrap_or(0));
 

@@ -319,10 +319,7 @@ impl RunSettings {
             return Err(format!("initialisation frames must be at least {MIN_INIT_FRAMES}, got {}", self.init_frames));
         }
         if !(0.0..=MAX_FLOW_THRESHOLD).contains(&self.flow_threshold) {
-            return Err(format!(
-                "flow threshold must be in [0, {MAX_FLOW_THRESHOLD}], got {}",
-                self.flow_threshold
-            ));
+            return Err(format!("flow threshold must be in [0, {MAX_FLOW_THRESHOLD}], got {}", self.flow_threshold));
         }
         Ok(())
     }

@@ -31,7 +31,8 @@ fn skip_or_fail(what: &str) {
 }
 
 fn chromium() -> Option<PathBuf> {
-    let p = std::env::var_os("COLSLAM_CHROMIUM").map(PathBuf::from).unwrap_or_else(|| PathBuf::from("/usr/bin/chromium"));
+    let p =
+        std::env::var_os("COLSLAM_CHROMIUM").map(PathBuf::from).unwrap_or_else(|| PathBuf::from("/usr/bin/chromium"));
     p.exists().then_some(p)
 }
 
@@ -208,7 +209,8 @@ fn browser_end_to_end() {
         track_point.track.iter().filter(|t| (clip_start..=clip_end).contains(&(t.image_id.0 - 1))).count();
     assert!(clip_track_lines < track_lines, "the clip must cut the chosen track");
 
-    let shots = std::env::var_os("COLSLAM_SCREENSHOT_DIR").map(PathBuf::from).unwrap_or_else(|| root.join("docs/screenshots"));
+    let shots =
+        std::env::var_os("COLSLAM_SCREENSHOT_DIR").map(PathBuf::from).unwrap_or_else(|| root.join("docs/screenshots"));
     std::fs::create_dir_all(&shots).expect("screenshot dir");
     let mut viewer = Viewer::start(ViewerOptions { port: 0, ..Default::default() }).expect("viewer");
     let controller = Arc::new(MockController::default());
@@ -283,7 +285,10 @@ fn browser_end_to_end() {
                 let s = &started[0];
                 assert_eq!((s.skip, s.init_frames, s.max_frames), (2, 20, None));
                 assert_eq!(s.input, PathBuf::from("/data/sequence"));
-                assert_eq!((s.extractor, s.matcher), (colslam_viewer::Extractor::Xfeat, colslam_viewer::Matcher::Lighterglue));
+                assert_eq!(
+                    (s.extractor, s.matcher),
+                    (colslam_viewer::Extractor::Xfeat, colslam_viewer::Matcher::Lighterglue)
+                );
                 writeln!(stdin, "DONE run-started").expect("ack");
             }
             Some("large") => {
@@ -294,7 +299,12 @@ fn browser_end_to_end() {
                 writeln!(stdin, "DONE large").expect("ack");
             }
             Some("large-delta") => {
-                let p = ViewerPoint { id: LARGE_POINTS as u64 + 1, xyz: [0.0, 0.0, 0.0], color: [255, 0, 0], observers: vec![1] };
+                let p = ViewerPoint {
+                    id: LARGE_POINTS as u64 + 1,
+                    xyz: [0.0, 0.0, 0.0],
+                    color: [255, 0, 0],
+                    observers: vec![1],
+                };
                 viewer.apply(ViewerUpdate::MapDelta(MapDelta { points: vec![p], ..Default::default() }));
                 writeln!(stdin, "DONE large-delta").expect("ack");
             }

@@ -63,16 +63,11 @@ pub enum XFeatError {
 impl From<XFeatError> for colslam_features::FeatureError {
     fn from(e: XFeatError) -> Self {
         match e {
-            XFeatError::EmptyImage { width, height } => {
-                colslam_features::FeatureError::EmptyImage { width, height }
-            }
+            XFeatError::EmptyImage { width, height } => colslam_features::FeatureError::EmptyImage { width, height },
             XFeatError::InvalidOptions { what, reason } => {
                 colslam_features::FeatureError::InvalidOptions { what, reason }
             }
-            other => colslam_features::FeatureError::InvalidOptions {
-                what: "XFeat",
-                reason: other.to_string(),
-            },
+            other => colslam_features::FeatureError::InvalidOptions { what: "XFeat", reason: other.to_string() },
         }
     }
 }

@@ -1,9 +1,7 @@
 //! The sparse XFeat extractor (the reference `XFeat.detectAndCompute`).
 
 use crate::XFeatError;
-use crate::model::{
-    CELL, DESCRIPTOR_DIM, DenseOutput, KEYPOINT_CHANNELS, SIZE_MULTIPLE, XFeatModel,
-};
+use crate::model::{CELL, DESCRIPTOR_DIM, DenseOutput, KEYPOINT_CHANNELS, SIZE_MULTIPLE, XFeatModel};
 use crate::nn::{Map, resize_bilinear};
 use crate::sample::{bicubic_all, bilinear, map_coord, nearest};
 use colslam_features::{Descriptors, FeatureError, FeatureExtractor, Features, Keypoint};
@@ -37,32 +35,19 @@ pub struct XFeatOptions {
 
 impl Default for XFeatOptions {
     fn default() -> Self {
-        Self {
-            top_k: 4096,
-            detection_threshold: 0.05,
-            weights: None,
-        }
+        Self { top_k: 4096, detection_threshold: 0.05, weights: None }
     }
 }
 
 impl XFeatOptions {
     /// Checks every field.
     pub fn validate(&self) -> Result<(), XFeatError> {
-        let bad = |reason: String| {
-            Err(XFeatError::InvalidOptions {
-                what: "XFeat",
-                reason,
-            })
-        };
+        let bad = |reason: String| Err(XFeatError::InvalidOptions { what: "XFeat", reason });
         if self.top_k == 0 {
             return bad("top_k must be at least 1".into());
         }
-        if !(self.detection_threshold.is_finite() && (0.0..1.0).contains(&self.detection_threshold))
-        {
-            return bad(format!(
-                "detection_threshold {} must be in [0, 1)",
-                self.detection_threshold
-            ));
+        if !(self.detection_threshold.is_finite() && (0.0..1.0).contains(&self.detection_threshold)) {
+            return bad(format!("detection_threshold {} must be in [0, 1)", self.detection_threshold));
         }
         Ok(())
     }
@@ -77,10 +62,7 @@ pub fn find_weights() -> Result<PathBuf, XFeatError> {
         return if p.is_file() {
             Ok(p)
         } else {
-            Err(XFeatError::WeightsNotFound(format!(
-                "{WEIGHTS_ENV}={} is not a file",
-                p.display()
-            )))
+            Err(XFeatError::WeightsNotFound(format!("{WEIGHTS_ENV}={} is not a file", p.display())))
         };
     }
     let mut roots = vec![PathBuf::from(".venv")];
@@ -167,10 +149,7 @@ impl XFeat {
     /// `None` if the image is smaller than 32 pixels on a side.
     fn input(img: &Image) -> Option<(Map, (f32, f32))> {
         let (w, h, ch) = (img.width(), img.height(), img.channels());
-        let (hn, wn) = (
-            h / SIZE_MULTIPLE * SIZE_MULTIPLE,
-            w / SIZE_MULTIPLE * SIZE_MULTIPLE,
-        );
+        let (hn, wn) = (h / SIZE_MULTIPLE * SIZE_MULTIPLE, w / SIZE_MULTIPLE * SIZE_MULTIPLE);
         if hn == 0 || wn == 0 {
             return None;
         }
@@ -179,19 +158,14 @@ impl XFeat {
             .chunks_exact(ch)
             .map(|p| {
                 if ch == 3 {
-                    (f32::from(p[0]) / 255.0 + f32::from(p[1]) / 255.0 + f32::from(p[2]) / 255.0)
-                        / 3.0
+                    (f32::from(p[0]) / 255.0 + f32::from(p[1]) / 255.0 + f32::from(p[2]) / 255.0) / 3.0
                 } else {
                     f32::from(p[0]) / 255.0
                 }
             })
             .collect();
         let full = Map { c: 1, h, w, data };
-        let x = if (hn, wn) == (h, w) {
-            full
-        } else {
-            resize_bilinear(&full, hn, wn)
-        };
+        let x = if (hn, wn) == (h, w) { full } else { resize_bilinear(&full, hn, wn) };
         Some((x, (w as f32 / wn as f32, h as f32 / hn as f32)))
     }
 
@@ -199,10 +173,7 @@ impl XFeat {
     /// smaller than 32 pixels on a side; an error for an empty one.
     pub fn dense(&self, img: &Image) -> Result<Option<DenseMaps>, XFeatError> {
         if img.is_empty() {
-            return Err(XFeatError::EmptyImage {
-                width: img.width(),
-                height: img.height(),
-            });
+            return Err(XFeatError::EmptyImage { width: img.width(), height: img.height() });
         }
         let Some((x, scale)) = Self::input(img) else {
             return Ok(None);
@@ -210,22 +181,13 @@ impl XFeat {
         let net = self.model.forward(&x)?;
         let descriptors = normalize_channels(&net.descriptors);
         let keypoint_heatmap = keypoint_heatmap(&net.keypoint_logits);
-        Ok(Some(DenseMaps {
-            net,
-            descriptors,
-            keypoint_heatmap,
-            scale,
-        }))
+        Ok(Some(DenseMaps { net, descriptors, keypoint_heatmap, scale }))
     }
 
     /// Detects and describes up to `top_k` keypoints (the reference
     /// `detectAndCompute`).
     pub fn detect_and_compute(&self, img: &Image) -> Result<XFeatOutput, XFeatError> {
-        let empty = XFeatOutput {
-            keypoints: Vec::new(),
-            scores: Vec::new(),
-            descriptors: Vec::new(),
-        };
+        let empty = XFeatOutput { keypoints: Vec::new(), scores: Vec::new(), descriptors: Vec::new() };
         let Some(d) = self.dense(img)? else {
             return Ok(empty);
         };
@@ -238,11 +200,7 @@ fn normalize_channels(m: &Map) -> Map {
     let n = m.plane();
     let mut out = m.clone();
     for p in 0..n {
-        let norm = (0..m.c)
-            .map(|k| m.data[k * n + p].powi(2))
-            .sum::<f32>()
-            .sqrt()
-            .max(NORMALIZE_EPS);
+        let norm = (0..m.c).map(|k| m.data[k * n + p].powi(2)).sum::<f32>().sqrt().max(NORMALIZE_EPS);
         for k in 0..m.c {
             out.data[k * n + p] /= norm;
         }
@@ -261,12 +219,8 @@ fn keypoint_heatmap(logits: &Map) -> Map {
     for y in 0..h {
         for x in 0..w {
             let p = y * w + x;
-            let max = (0..KEYPOINT_CHANNELS)
-                .map(|k| logits.data[k * n + p])
-                .fold(f32::NEG_INFINITY, f32::max);
-            let sum: f32 = (0..KEYPOINT_CHANNELS)
-                .map(|k| (logits.data[k * n + p] - max).exp())
-                .sum();
+            let max = (0..KEYPOINT_CHANNELS).map(|k| logits.data[k * n + p]).fold(f32::NEG_INFINITY, f32::max);
+            let sum: f32 = (0..KEYPOINT_CHANNELS).map(|k| (logits.data[k * n + p] - max).exp()).sum();
             for k in 0..CELL * CELL {
                 let v = (logits.data[k * n + p] - max).exp() / sum;
                 let (dy, dx) = (k / CELL, k % CELL);
@@ -297,9 +251,7 @@ fn nms(heat: &Map, threshold: f32) -> Vec<(usize, usize)> {
         for x in 0..w {
             let v = heat.data[y * w + x];
             if v > threshold {
-                let m = (a..=b)
-                    .map(|yy| hmax[yy * w + x])
-                    .fold(f32::NEG_INFINITY, f32::max);
+                let m = (a..=b).map(|yy| hmax[yy * w + x]).fold(f32::NEG_INFINITY, f32::max);
                 if v == m {
                     out.push((x, y));
                 }
@@ -322,18 +274,8 @@ fn select(d: &DenseMaps, top_k: usize, threshold: f32) -> XFeatOutput {
                 return (PADDING_SCORE, x, y);
             }
             let (px, py) = (x as f32, y as f32);
-            let k = nearest(
-                heat,
-                0,
-                map_coord(px, full_w, heat.w),
-                map_coord(py, full_h, heat.h),
-            );
-            let r = bilinear(
-                rel,
-                0,
-                map_coord(px, full_w, rel.w),
-                map_coord(py, full_h, rel.h),
-            );
+            let k = nearest(heat, 0, map_coord(px, full_w, heat.w), map_coord(py, full_h, heat.h));
+            let r = bilinear(rel, 0, map_coord(px, full_w, rel.w), map_coord(py, full_h, rel.h));
             (k * r, x, y)
         })
         .collect();
@@ -347,24 +289,10 @@ fn select(d: &DenseMaps, top_k: usize, threshold: f32) -> XFeatOutput {
         scores: Vec::with_capacity(scored.len()),
         descriptors: vec![0.0; scored.len() * DESCRIPTOR_DIM],
     };
-    for (row, &(s, x, y)) in out
-        .descriptors
-        .chunks_exact_mut(DESCRIPTOR_DIM)
-        .zip(&scored)
-    {
+    for (row, &(s, x, y)) in out.descriptors.chunks_exact_mut(DESCRIPTOR_DIM).zip(&scored) {
         let (px, py) = (x as f32, y as f32);
-        bicubic_all(
-            desc,
-            map_coord(px, full_w, desc.w),
-            map_coord(py, full_h, desc.h),
-            row,
-        );
-        let norm = row
-            .iter()
-            .map(|v| v * v)
-            .sum::<f32>()
-            .sqrt()
-            .max(NORMALIZE_EPS);
+        bicubic_all(desc, map_coord(px, full_w, desc.w), map_coord(py, full_h, desc.h), row);
+        let norm = row.iter().map(|v| v * v).sum::<f32>().sqrt().max(NORMALIZE_EPS);
         row.iter_mut().for_each(|v| *v /= norm);
         out.keypoints.push([px * d.scale.0, py * d.scale.1]);
         out.scores.push(s);
@@ -385,22 +313,9 @@ impl FeatureExtractor for XFeat {
             .keypoints
             .iter()
             .zip(&o.scores)
-            .map(|(p, &s)| Keypoint {
-                x: p[0],
-                y: p[1],
-                octave: 0,
-                angle: 0.0,
-                response: s,
-                size: KEYPOINT_SIZE,
-            })
+            .map(|(p, &s)| Keypoint { x: p[0], y: p[1], octave: 0, angle: 0.0, response: s, size: KEYPOINT_SIZE })
             .collect();
-        Ok(Features {
-            keypoints,
-            descriptors: Descriptors::Float {
-                dim: DESCRIPTOR_DIM,
-                data: o.descriptors,
-            },
-        })
+        Ok(Features { keypoints, descriptors: Descriptors::Float { dim: DESCRIPTOR_DIM, data: o.descriptors } })
     }
 }
 
@@ -430,29 +345,8 @@ mod tests {
     #[test]
     fn options_validate() {
         assert!(XFeatOptions::default().validate().is_ok());
-        assert!(
-            XFeatOptions {
-                top_k: 0,
-                ..Default::default()
-            }
-            .validate()
-            .is_err()
-        );
-        assert!(
-            XFeatOptions {
-                detection_threshold: f32::NAN,
-                ..Default::default()
-            }
-            .validate()
-            .is_err()
-        );
-        assert!(
-            XFeatOptions {
-                detection_threshold: 1.5,
-                ..Default::default()
-            }
-            .validate()
-            .is_err()
-        );
+        assert!(XFeatOptions { top_k: 0, ..Default::default() }.validate().is_err());
+        assert!(XFeatOptions { detection_threshold: f32::NAN, ..Default::default() }.validate().is_err());
+        assert!(XFeatOptions { detection_threshold: 1.5, ..Default::default() }.validate().is_err());
     }
 }

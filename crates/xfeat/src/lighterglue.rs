@@ -46,32 +46,19 @@ pub struct LighterGlueOptions {
 
 impl Default for LighterGlueOptions {
     fn default() -> Self {
-        Self {
-            min_conf: 0.1,
-            width_confidence: 0.95,
-            image_size: None,
-            weights: None,
-        }
+        Self { min_conf: 0.1, width_confidence: 0.95, image_size: None, weights: None }
     }
 }
 
 impl LighterGlueOptions {
     /// Checks every field.
     pub fn validate(&self) -> Result<(), XFeatError> {
-        let bad = |reason: String| {
-            Err(XFeatError::InvalidOptions {
-                what: "LighterGlue",
-                reason,
-            })
-        };
+        let bad = |reason: String| Err(XFeatError::InvalidOptions { what: "LighterGlue", reason });
         if !(self.min_conf.is_finite() && (0.0..1.0).contains(&self.min_conf)) {
             return bad(format!("min_conf {} must be in [0, 1)", self.min_conf));
         }
         if !self.width_confidence.is_finite() || self.width_confidence > 1.0 {
-            return bad(format!(
-                "width_confidence {} must be finite and at most 1",
-                self.width_confidence
-            ));
+            return bad(format!("width_confidence {} must be finite and at most 1", self.width_confidence));
         }
         if let Some([w, h]) = self.image_size
             && (w == 0 || h == 0)
@@ -93,10 +80,7 @@ struct Linear {
 
 impl Linear {
     fn load(sd: &StateDict, prefix: &str, inp: usize, out: usize) -> Result<Self, XFeatError> {
-        let w = sd
-            .get(&format!("{prefix}.weight"), &[out, inp])?
-            .data
-            .clone();
+        let w = sd.get(&format!("{prefix}.weight"), &[out, inp])?.data.clone();
         let b = sd.get(&format!("{prefix}.bias"), &[out])?.data.clone();
         Ok(Self { out, inp, w, b })
     }
@@ -126,25 +110,16 @@ impl Ffn {
     fn load(sd: &StateDict, prefix: &str) -> Result<Self, XFeatError> {
         Ok(Self {
             l0: Linear::load(sd, &format!("{prefix}.0"), 2 * DIM, 2 * DIM)?,
-            ln_w: sd
-                .get(&format!("{prefix}.1.weight"), &[2 * DIM])?
-                .data
-                .clone(),
-            ln_b: sd
-                .get(&format!("{prefix}.1.bias"), &[2 * DIM])?
-                .data
-                .clone(),
+            ln_w: sd.get(&format!("{prefix}.1.weight"), &[2 * DIM])?.data.clone(),
+            ln_b: sd.get(&format!("{prefix}.1.bias"), &[2 * DIM])?.data.clone(),
             l3: Linear::load(sd, &format!("{prefix}.3"), 2 * DIM, DIM)?,
         })
     }
 
     /// `x += ffn([x, message])`.
     fn residual(&self, x: &mut [f32], message: &[f32]) {
-        let cat: Vec<f32> = x
-            .chunks_exact(DIM)
-            .zip(message.chunks_exact(DIM))
-            .flat_map(|(a, b)| a.iter().chain(b).copied())
-            .collect();
+        let cat: Vec<f32> =
+            x.chunks_exact(DIM).zip(message.chunks_exact(DIM)).flat_map(|(a, b)| a.iter().chain(b).copied()).collect();
         let mut h = self.l0.forward(&cat);
         for row in h.chunks_exact_mut(2 * DIM) {
             let n = row.len() as f32;
@@ -165,13 +140,7 @@ impl Ffn {
 /// sensitive to float32 rounding elsewhere).
 fn erf(x: f64) -> f64 {
     const P: f64 = 0.327_591_1;
-    const A: [f64; 5] = [
-        0.254_829_592,
-        -0.284_496_736,
-        1.421_413_741,
-        -1.453_152_027,
-        1.061_405_429,
-    ];
+    const A: [f64; 5] = [0.254_829_592, -0.284_496_736, 1.421_413_741, -1.453_152_027, 1.061_405_429];
     let a = x.abs();
     let t = 1.0 / (1.0 + P * a);
     let poly = t * (A[0] + t * (A[1] + t * (A[2] + t * (A[3] + t * A[4]))));
@@ -191,8 +160,7 @@ fn gelu(x: f32) -> f32 {
 /// matrix product many times slower on x86.
 fn softmax_rows(m: &mut [f32], cols: usize) {
     use rayon::prelude::*;
-    m.par_chunks_mut(cols.max(1) * SOFTMAX_ROWS_PER_TASK)
-        .for_each(|rows| softmax_rows_seq(rows, cols));
+    m.par_chunks_mut(cols.max(1) * SOFTMAX_ROWS_PER_TASK).for_each(|rows| softmax_rows_seq(rows, cols));
 }
 
 /// Rows per rayon task in [`softmax_rows`].
@@ -244,11 +212,7 @@ fn transpose(m: &[f32], rows: usize, cols: usize) -> Vec<f32> {
 /// Rotary embedding: pairs `(t[2i], t[2i+1])` rotated by the angle of
 /// frequency `i` (`cos`/`sin` hold one value per pair).
 fn rotate(t: &mut [f32], cos: &[f32], sin: &[f32]) {
-    for ((row, c), s) in t
-        .chunks_exact_mut(DIM)
-        .zip(cos.chunks_exact(FREQS))
-        .zip(sin.chunks_exact(FREQS))
-    {
+    for ((row, c), s) in t.chunks_exact_mut(DIM).zip(cos.chunks_exact(FREQS)).zip(sin.chunks_exact(FREQS)) {
         for i in 0..FREQS {
             let (a, b) = (row[2 * i], row[2 * i + 1]);
             row[2 * i] = a * c[i] - b * s[i];
@@ -276,9 +240,7 @@ impl Layer {
         let qkv = self.wqkv.forward(x);
         // The 3*DIM outputs are laid out (dim, {q, k, v}).
         let pick = |j: usize| -> Vec<f32> {
-            qkv.chunks_exact(3 * DIM)
-                .flat_map(|r| (0..DIM).map(move |d| r[3 * d + j]))
-                .collect()
+            qkv.chunks_exact(3 * DIM).flat_map(|r| (0..DIM).map(move |d| r[3 * d + j])).collect()
         };
         let (mut q, mut k, v) = (pick(0), pick(1), pick(2));
         rotate(&mut q, cos, sin);
@@ -379,10 +341,7 @@ impl LighterGlue {
             .collect::<Result<Vec<_>, XFeatError>>()?;
         Ok(Self {
             input_proj: Linear::load(sd, &format!("{p}.input_proj"), DESCRIPTOR_DIM, DIM)?,
-            wr: sd
-                .get(&format!("{p}.posenc.Wr.weight"), &[FREQS, 2])?
-                .data
-                .clone(),
+            wr: sd.get(&format!("{p}.posenc.Wr.weight"), &[FREQS, 2])?.data.clone(),
             layers,
             opts,
         })
@@ -417,11 +376,7 @@ impl LighterGlue {
 
     /// Matches two XFeat feature sets. Returns `(index in a, index in b,
     /// assignment probability)` sorted by the index in `a`.
-    pub fn match_pair(
-        &self,
-        a: GlueInput<'_>,
-        b: GlueInput<'_>,
-    ) -> Result<Vec<(u32, u32, f32)>, XFeatError> {
+    pub fn match_pair(&self, a: GlueInput<'_>, b: GlueInput<'_>) -> Result<Vec<(u32, u32, f32)>, XFeatError> {
         for (side, g) in [("first", &a), ("second", &b)] {
             if g.descriptors.len() != g.keypoints.len() * DESCRIPTOR_DIM {
                 return Err(XFeatError::InvalidOptions {
@@ -440,10 +395,7 @@ impl LighterGlue {
                     reason: format!("{side} image size is zero"),
                 });
             }
-            if g.keypoints
-                .iter()
-                .any(|p| !(p[0].is_finite() && p[1].is_finite()))
-            {
+            if g.keypoints.iter().any(|p| !(p[0].is_finite() && p[1].is_finite())) {
                 return Err(XFeatError::InvalidOptions {
                     what: "LighterGlue input",
                     reason: format!("{side} set has non-finite keypoints"),
@@ -469,15 +421,9 @@ impl LighterGlue {
             if i == last || !prune {
                 continue;
             }
-            for (x, c, s, ind) in [
-                (&mut x0, &mut c0, &mut s0, &mut ind0),
-                (&mut x1, &mut c1, &mut s1, &mut ind1),
-            ] {
-                let keep: Vec<bool> = layer
-                    .matchability_logits(x)
-                    .iter()
-                    .map(|&z| sigmoid(z) > min_matchability)
-                    .collect();
+            for (x, c, s, ind) in [(&mut x0, &mut c0, &mut s0, &mut ind0), (&mut x1, &mut c1, &mut s1, &mut ind1)] {
+                let keep: Vec<bool> =
+                    layer.matchability_logits(x).iter().map(|&z| sigmoid(z) > min_matchability).collect();
                 let filt = |v: &mut Vec<f32>, w: usize| {
                     let mut k = keep.iter();
                     let mut out = Vec::with_capacity(v.len());
@@ -502,45 +448,28 @@ impl LighterGlue {
     }
 
     /// Dual-softmax + matchability assignment, mutual check and threshold.
-    fn assign(
-        &self,
-        layer: &Layer,
-        x0: &[f32],
-        x1: &[f32],
-        ind0: &[u32],
-        ind1: &[u32],
-    ) -> Vec<(u32, u32, f32)> {
+    fn assign(&self, layer: &Layer, x0: &[f32], x1: &[f32], ind0: &[u32], ind1: &[u32]) -> Vec<(u32, u32, f32)> {
         let (m, n) = (ind0.len(), ind1.len());
         let scale = (DIM as f32).powf(-0.25);
         let mut md0 = layer.final_proj.forward(x0);
         let mut md1 = layer.final_proj.forward(x1);
-        md0.iter_mut()
-            .chain(md1.iter_mut())
-            .for_each(|v| *v *= scale);
+        md0.iter_mut().chain(md1.iter_mut()).for_each(|v| *v *= scale);
         let sim = a_bt(&md0, &md1, DIM);
         let z0 = layer.matchability_logits(x0);
         let z1 = layer.matchability_logits(x1);
         // Log-softmax over rows and over columns.
         let row_lse: Vec<f32> = sim.chunks_exact(n).map(log_sum_exp).collect();
-        let col_lse: Vec<f32> = (0..n)
-            .map(|j| log_sum_exp(&(0..m).map(|i| sim[i * n + j]).collect::<Vec<_>>()))
-            .collect();
+        let col_lse: Vec<f32> =
+            (0..n).map(|j| log_sum_exp(&(0..m).map(|i| sim[i * n + j]).collect::<Vec<_>>())).collect();
         let ls0: Vec<f32> = z0.iter().map(|&z| log_sigmoid(z)).collect();
         let ls1: Vec<f32> = z1.iter().map(|&z| log_sigmoid(z)).collect();
-        let score = |i: usize, j: usize| {
-            (sim[i * n + j] - row_lse[i]) + (sim[i * n + j] - col_lse[j]) + (ls0[i] + ls1[j])
-        };
+        let score =
+            |i: usize, j: usize| (sim[i * n + j] - row_lse[i]) + (sim[i * n + j] - col_lse[j]) + (ls0[i] + ls1[j]);
         let argmax = |it: &mut dyn Iterator<Item = (usize, f32)>| {
-            it.fold((usize::MAX, f32::NEG_INFINITY), |b, (k, v)| {
-                if v > b.1 { (k, v) } else { b }
-            })
+            it.fold((usize::MAX, f32::NEG_INFINITY), |b, (k, v)| if v > b.1 { (k, v) } else { b })
         };
-        let best0: Vec<(usize, f32)> = (0..m)
-            .map(|i| argmax(&mut (0..n).map(|j| (j, score(i, j)))))
-            .collect();
-        let best1: Vec<usize> = (0..n)
-            .map(|j| argmax(&mut (0..m).map(|i| (i, score(i, j)))).0)
-            .collect();
+        let best0: Vec<(usize, f32)> = (0..m).map(|i| argmax(&mut (0..n).map(|j| (j, score(i, j))))).collect();
+        let best1: Vec<usize> = (0..n).map(|j| argmax(&mut (0..m).map(|i| (i, score(i, j)))).0).collect();
         let mut out = Vec::new();
         for (i, &(j, s)) in best0.iter().enumerate() {
             if best1.get(j) != Some(&i) {
@@ -573,13 +502,10 @@ impl Matcher for LighterGlue {
         if a.is_empty() || b.is_empty() {
             return Ok(Vec::new());
         }
-        let size = self
-            .opts
-            .image_size
-            .ok_or_else(|| FeatureError::InvalidOptions {
-                what: "LighterGlue",
-                reason: "image_size must be set to use it through the Matcher interface".into(),
-            })?;
+        let size = self.opts.image_size.ok_or_else(|| FeatureError::InvalidOptions {
+            what: "LighterGlue",
+            reason: "image_size must be set to use it through the Matcher interface".into(),
+        })?;
         let desc = |f: &Features| -> Result<Vec<f32>, FeatureError> {
             match &f.descriptors {
                 Descriptors::Float { dim, data } if *dim == DESCRIPTOR_DIM => Ok(data.clone()),
@@ -592,24 +518,10 @@ impl Matcher for LighterGlue {
         let ka: Vec<[f32; 2]> = a.keypoints.iter().map(|k| [k.x, k.y]).collect();
         let kb: Vec<[f32; 2]> = b.keypoints.iter().map(|k| [k.x, k.y]).collect();
         let m = self.match_pair(
-            GlueInput {
-                keypoints: &ka,
-                descriptors: &da,
-                image_size: size,
-            },
-            GlueInput {
-                keypoints: &kb,
-                descriptors: &db,
-                image_size: size,
-            },
+            GlueInput { keypoints: &ka, descriptors: &da, image_size: size },
+            GlueInput { keypoints: &kb, descriptors: &db, image_size: size },
         )?;
-        Ok(m.into_iter()
-            .map(|(q, t, p)| Match {
-                query: q,
-                train: t,
-                distance: 1.0 - p,
-            })
-            .collect())
+        Ok(m.into_iter().map(|(q, t, p)| Match { query: q, train: t, distance: 1.0 - p }).collect())
     }
 }
 
@@ -621,11 +533,8 @@ mod tests {
     fn math_helpers() {
         // erf(0.5) = 0.520499877813047, erf(3.5) = 0.999999256901628,
         // gelu(1) = 0.8413447461.
-        for (x, want) in [
-            (0.5, 0.520_499_877_813_047),
-            (-3.5, -0.999_999_256_901_628),
-            (2.9, 0.999_958_902_121_900_2),
-        ] {
+        for (x, want) in [(0.5, 0.520_499_877_813_047), (-3.5, -0.999_999_256_901_628), (2.9, 0.999_958_902_121_900_2)]
+        {
             assert!((erf(x) - want).abs() < 1.5e-7, "erf({x})");
         }
         assert!(erf(0.0).abs() < 1.5e-7);
@@ -642,29 +551,8 @@ mod tests {
     #[test]
     fn options_validate() {
         assert!(LighterGlueOptions::default().validate().is_ok());
-        assert!(
-            LighterGlueOptions {
-                min_conf: 1.0,
-                ..Default::default()
-            }
-            .validate()
-            .is_err()
-        );
-        assert!(
-            LighterGlueOptions {
-                width_confidence: f32::NAN,
-                ..Default::default()
-            }
-            .validate()
-            .is_err()
-        );
-        assert!(
-            LighterGlueOptions {
-                image_size: Some([0, 5]),
-                ..Default::default()
-            }
-            .validate()
-            .is_err()
-        );
+        assert!(LighterGlueOptions { min_conf: 1.0, ..Default::default() }.validate().is_err());
+        assert!(LighterGlueOptions { width_confidence: f32::NAN, ..Default::default() }.validate().is_err());
+        assert!(LighterGlueOptions { image_size: Some([0, 5]), ..Default::default() }.validate().is_err());
     }
 }

@@ -35,10 +35,7 @@ impl MnnCosineOptions {
         if !(self.min_cossim.is_finite() && self.min_cossim <= 1.0) {
             return Err(FeatureError::InvalidOptions {
                 what: "mutual-nearest-neighbour cosine matcher",
-                reason: format!(
-                    "min_cossim {} must be finite and at most 1",
-                    self.min_cossim
-                ),
+                reason: format!("min_cossim {} must be finite and at most 1", self.min_cossim),
             });
         }
         Ok(())
@@ -67,12 +64,7 @@ impl MnnCosineMatcher {
 
     /// Matches row-major `dim`-dimensional descriptor sets. `distance` in the
     /// result is the Euclidean distance of unit vectors, `sqrt(2 - 2 cos)`.
-    pub fn match_descriptors(
-        &self,
-        dim: usize,
-        query: &[f32],
-        train: &[f32],
-    ) -> Result<Vec<Match>, FeatureError> {
+    pub fn match_descriptors(&self, dim: usize, query: &[f32], train: &[f32]) -> Result<Vec<Match>, FeatureError> {
         if dim == 0 || !query.len().is_multiple_of(dim) || !train.len().is_multiple_of(dim) {
             return Err(FeatureError::DescriptorMismatch(format!(
                 "{} and {} values are not whole {dim}-dimensional descriptors",
@@ -94,15 +86,7 @@ impl MnnCosineMatcher {
                 let nb = QUERY_BLOCK.min(nq - q0);
                 let mut sim = vec![0.0f32; nb * nt];
                 // train^T: element (i, j) = train[j * dim + i].
-                gemm_strided(
-                    nb,
-                    dim,
-                    nt,
-                    &query[q0 * dim..(q0 + nb) * dim],
-                    train,
-                    (1, dim),
-                    &mut sim,
-                );
+                gemm_strided(nb, dim, nt, &query[q0 * dim..(q0 + nb) * dim], train, (1, dim), &mut sim);
                 let mut fwd = Vec::with_capacity(nb);
                 let mut rev = vec![(f32::NEG_INFINITY, u32::MAX); nt];
                 for (r, row) in sim.chunks_exact(nt).enumerate() {
@@ -140,11 +124,7 @@ impl MnnCosineMatcher {
             if back as usize != qi || (self.opts.min_cossim > 0.0 && s <= self.opts.min_cossim) {
                 continue;
             }
-            out.push(Match {
-                query: qi as u32,
-                train: j,
-                distance: (2.0 - 2.0 * s).max(0.0).sqrt(),
-            });
+            out.push(Match { query: qi as u32, train: j, distance: (2.0 - 2.0 * s).max(0.0).sqrt() });
         }
         Ok(out)
     }
@@ -171,9 +151,9 @@ impl Matcher for MnnCosineMatcher {
                 self.match_descriptors(*da, q, t)
             }
             _ if a.is_empty() || b.is_empty() => Ok(Vec::new()),
-            _ => Err(FeatureError::DescriptorMismatch(
-                "the cosine matcher needs float descriptors on both sides".into(),
-            )),
+            _ => {
+                Err(FeatureError::DescriptorMismatch("the cosine matcher needs float descriptors on both sides".into()))
+            }
         }
     }
 }
@@ -191,25 +171,15 @@ mod tests {
     fn naive(dim: usize, q: &[f32], t: &[f32], min: f32) -> Vec<(u32, u32)> {
         let dot = |a: &[f32], b: &[f32]| a.iter().zip(b).map(|(x, y)| x * y).sum::<f32>();
         let argmax = |v: Vec<f32>| {
-            v.iter().enumerate().fold(
-                (0, f32::NEG_INFINITY),
-                |b, (i, &s)| if s > b.1 { (i, s) } else { b },
-            )
+            v.iter().enumerate().fold((0, f32::NEG_INFINITY), |b, (i, &s)| if s > b.1 { (i, s) } else { b })
         };
         let (nq, nt) = (q.len() / dim, t.len() / dim);
         let mut out = Vec::new();
         for i in 0..nq {
             let qi = &q[i * dim..(i + 1) * dim];
-            let (j, s) = argmax(
-                (0..nt)
-                    .map(|j| dot(qi, &t[j * dim..(j + 1) * dim]))
-                    .collect(),
-            );
-            let (back, _) = argmax(
-                (0..nq)
-                    .map(|k| dot(&q[k * dim..(k + 1) * dim], &t[j * dim..(j + 1) * dim]))
-                    .collect(),
-            );
+            let (j, s) = argmax((0..nt).map(|j| dot(qi, &t[j * dim..(j + 1) * dim])).collect());
+            let (back, _) =
+                argmax((0..nq).map(|k| dot(&q[k * dim..(k + 1) * dim], &t[j * dim..(j + 1) * dim])).collect());
             if back == i && (min <= 0.0 || s > min) {
                 out.push((i as u32, j as u32));
             }
@@ -226,9 +196,7 @@ mod tests {
                 .flat_map(|_| {
                     let v: Vec<f32> = (0..dim)
                         .map(|_| {
-                            s = s
-                                .wrapping_mul(6364136223846793005)
-                                .wrapping_add(1442695040888963407);
+                            s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
                             (s >> 40) as f32 / (1u64 << 24) as f32 - 0.5
                         })
                         .collect();
@@ -240,12 +208,8 @@ mod tests {
         let t = rnd(500);
         for min in [-1.0f32, 0.82] {
             let m = MnnCosineMatcher::new(MnnCosineOptions { min_cossim: min }).unwrap();
-            let got: Vec<(u32, u32)> = m
-                .match_descriptors(dim, &q, &t)
-                .unwrap()
-                .iter()
-                .map(|m| (m.query, m.train))
-                .collect();
+            let got: Vec<(u32, u32)> =
+                m.match_descriptors(dim, &q, &t).unwrap().iter().map(|m| (m.query, m.train)).collect();
             let want = naive(dim, &q, &t, min);
             assert!(!want.is_empty());
             assert_eq!(got, want, "min_cossim {min}");
@@ -254,12 +218,7 @@ mod tests {
 
     #[test]
     fn bad_inputs_and_options() {
-        assert!(
-            MnnCosineMatcher::new(MnnCosineOptions {
-                min_cossim: f32::NAN
-            })
-            .is_err()
-        );
+        assert!(MnnCosineMatcher::new(MnnCosineOptions { min_cossim: f32::NAN }).is_err());
         assert!(MnnCosineMatcher::new(MnnCosineOptions { min_cossim: 1.5 }).is_err());
         let m = MnnCosineMatcher::new(MnnCosineOptions::default()).unwrap();
         assert!(m.match_descriptors(3, &[1.0; 4], &[1.0; 3]).is_err());
@@ -275,10 +234,7 @@ mod tests {
                 response: 1.0,
                 size: 8.0,
             }],
-            descriptors: Descriptors::Float {
-                dim: 2,
-                data: vec![1.0, 0.0],
-            },
+            descriptors: Descriptors::Float { dim: 2, data: vec![1.0, 0.0] },
         };
         assert!(m.match_features(&binary, &float).unwrap().is_empty());
         let got = m.match_features(&float, &float).unwrap();

@@ -8,9 +8,7 @@
 //! BatchNorms have no affine parameters).
 
 use crate::XFeatError;
-use crate::nn::{
-    Conv, Map, NORM_EPS, add_into, avg_pool, instance_norm, pixel_unshuffle, resize_bilinear,
-};
+use crate::nn::{Conv, Map, NORM_EPS, add_into, avg_pool, instance_norm, pixel_unshuffle, resize_bilinear};
 use crate::weights::StateDict;
 use std::path::Path;
 
@@ -58,22 +56,13 @@ const BLOCK1: &[LayerSpec] = &[(1, 4, 3, 1), (4, 8, 3, 2), (8, 8, 3, 1), (8, 24,
 const BLOCK2: &[LayerSpec] = &[(24, 24, 3, 1), (24, 24, 3, 1)];
 const BLOCK3: &[LayerSpec] = &[(24, 64, 3, 2), (64, 64, 3, 1), (64, 64, 1, 1)];
 const BLOCK4: &[LayerSpec] = &[(64, 64, 3, 2), (64, 64, 3, 1), (64, 64, 3, 1)];
-const BLOCK5: &[LayerSpec] = &[
-    (64, 128, 3, 2),
-    (128, 128, 3, 1),
-    (128, 128, 3, 1),
-    (128, 64, 1, 1),
-];
+const BLOCK5: &[LayerSpec] = &[(64, 128, 3, 2), (128, 128, 3, 1), (128, 128, 3, 1), (128, 64, 1, 1)];
 const FUSION: &[LayerSpec] = &[(64, 64, 3, 1), (64, 64, 3, 1)];
 const HEATMAP: &[LayerSpec] = &[(64, 64, 1, 1), (64, 64, 1, 1)];
 const KEYPOINT: &[LayerSpec] = &[(64, 64, 1, 1), (64, 64, 1, 1), (64, 64, 1, 1)];
 
 /// One Conv(bias=False) -> BatchNorm(affine=False) -> ReLU, folded.
-fn basic_layer(
-    sd: &StateDict,
-    prefix: &str,
-    (cin, cout, k, stride): LayerSpec,
-) -> Result<Conv, XFeatError> {
+fn basic_layer(sd: &StateDict, prefix: &str, (cin, cout, k, stride): LayerSpec) -> Result<Conv, XFeatError> {
     let w = sd.get(&format!("{prefix}.layer.0.weight"), &[cout, cin, k, k])?;
     let mean = sd.get(&format!("{prefix}.layer.1.running_mean"), &[cout])?;
     let var = sd.get(&format!("{prefix}.layer.1.running_var"), &[cout])?;
@@ -87,40 +76,18 @@ fn basic_layer(
         }
         bias[o] = (-f64::from(mean.data[o]) * inv) as f32;
     }
-    Ok(Conv {
-        cout,
-        cin,
-        k,
-        stride,
-        pad: k / 2,
-        weight,
-        bias,
-        relu: true,
-    })
+    Ok(Conv { cout, cin, k, stride, pad: k / 2, weight, bias, relu: true })
 }
 
 /// A plain biased 1x1 convolution.
 fn plain_conv(sd: &StateDict, prefix: &str, cin: usize, cout: usize) -> Result<Conv, XFeatError> {
     let w = sd.get(&format!("{prefix}.weight"), &[cout, cin, 1, 1])?;
     let b = sd.get(&format!("{prefix}.bias"), &[cout])?;
-    Ok(Conv {
-        cout,
-        cin,
-        k: 1,
-        stride: 1,
-        pad: 0,
-        weight: w.data.clone(),
-        bias: b.data.clone(),
-        relu: false,
-    })
+    Ok(Conv { cout, cin, k: 1, stride: 1, pad: 0, weight: w.data.clone(), bias: b.data.clone(), relu: false })
 }
 
 fn block(sd: &StateDict, name: &str, specs: &[LayerSpec]) -> Result<Vec<Conv>, XFeatError> {
-    specs
-        .iter()
-        .enumerate()
-        .map(|(i, &s)| basic_layer(sd, &format!("{name}.{i}"), s))
-        .collect()
+    specs.iter().enumerate().map(|(i, &s)| basic_layer(sd, &format!("{name}.{i}"), s)).collect()
 }
 
 fn run(layers: &[Conv], x: Map) -> Map {
@@ -192,10 +159,6 @@ impl XFeatModel {
             *v = 1.0 / (1.0 + (-*v).exp());
         }
         let logits = run(&self.keypoint_head, pixel_unshuffle(&x, CELL));
-        Ok(DenseOutput {
-            descriptors: feats,
-            keypoint_logits: logits,
-            reliability: heat,
-        })
+        Ok(DenseOutput { descriptors: feats, keypoint_logits: logits, reliability: heat })
     }
 }

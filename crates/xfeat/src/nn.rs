@@ -23,12 +23,7 @@ pub struct Map {
 impl Map {
     /// A zero map.
     pub fn zeros(c: usize, h: usize, w: usize) -> Self {
-        Self {
-            c,
-            h,
-            w,
-            data: vec![0.0; c * h * w],
-        }
+        Self { c, h, w, data: vec![0.0; c * h * w] }
     }
 
     /// Pixels per channel.
@@ -94,10 +89,7 @@ impl Conv {
             return out;
         }
         // Tasks cover whole output rows so im2col can copy row segments.
-        let rows_per_task = (COL_BLOCK_FLOATS / kk.max(1))
-            .max(MIN_COLS_PER_TASK)
-            .div_ceil(wo)
-            .min(ho);
+        let rows_per_task = (COL_BLOCK_FLOATS / kk.max(1)).max(MIN_COLS_PER_TASK).div_ceil(wo).min(ho);
         let direct = self.k == 1 && self.stride == 1 && self.pad == 0;
         // Each task computes `cout x nb` outputs for its pixel range into its own buffer.
         let blocks: Vec<(usize, Vec<f32>)> = (0..ho)
@@ -110,15 +102,7 @@ impl Conv {
                 let mut block = vec![0.0f32; self.cout * nb];
                 if direct {
                     // B is the input itself: rows = input channels, row stride = n.
-                    gemm(
-                        self.cout,
-                        kk,
-                        nb,
-                        &self.weight,
-                        &x.data[j0..],
-                        n,
-                        &mut block,
-                    );
+                    gemm(self.cout, kk, nb, &self.weight, &x.data[j0..], n, &mut block);
                 } else {
                     let col = self.im2col(x, wo, oy0, rows);
                     gemm(self.cout, kk, nb, &self.weight, &col, nb, &mut block);
@@ -172,10 +156,7 @@ impl Conv {
                         if s == 1 {
                             drow[ox_lo..ox_hi].copy_from_slice(&srow[ix0..ix0 + (ox_hi - ox_lo)]);
                         } else {
-                            for (d, v) in drow[ox_lo..ox_hi]
-                                .iter_mut()
-                                .zip(srow[ix0..].iter().step_by(s))
-                            {
+                            for (d, v) in drow[ox_lo..ox_hi].iter_mut().zip(srow[ix0..].iter().step_by(s)) {
                                 *d = *v;
                             }
                         }
@@ -212,12 +193,9 @@ pub(crate) fn par_gemm_strided(
         return;
     }
     let rows = (m / (4 * rayon::current_num_threads())).max(PAR_GEMM_MIN_ROWS);
-    c[..m * n]
-        .par_chunks_mut(rows * n)
-        .zip(a[..m * k].par_chunks(rows * k))
-        .for_each(|(cc, aa)| {
-            gemm_strided(aa.len() / k, k, n, aa, b, strides, cc);
-        });
+    c[..m * n].par_chunks_mut(rows * n).zip(a[..m * k].par_chunks(rows * k)).for_each(|(cc, aa)| {
+        gemm_strided(aa.len() / k, k, n, aa, b, strides, cc);
+    });
 }
 
 /// `c (m x n, row-major) = a (m x k, row-major) * b`, where element `(i, j)`
@@ -238,10 +216,7 @@ pub(crate) fn gemm_strided(
     // the unsafe call below sound whatever happens.
     assert!(a.len() >= m * k, "gemm: A too short");
     assert!(c.len() >= m * n, "gemm: C too short");
-    assert!(
-        k == 0 || b.len() > (k - 1) * rsb + (n - 1) * csb,
-        "gemm: B too short"
-    );
+    assert!(k == 0 || b.len() > (k - 1) * rsb + (n - 1) * csb, "gemm: B too short");
     let (rsb, csb) = (rsb as isize, csb as isize);
     // SAFETY: the asserts above prove every element sgemm touches is inside
     // the slices: A is m x k with strides (k, 1), B is k x n with strides
@@ -336,11 +311,7 @@ pub fn instance_norm(x: &mut Map) {
     }
     for ch in x.data.chunks_exact_mut(n) {
         let mean = ch.iter().map(|&v| f64::from(v)).sum::<f64>() / n as f64;
-        let var = ch
-            .iter()
-            .map(|&v| (f64::from(v) - mean).powi(2))
-            .sum::<f64>()
-            / n as f64;
+        let var = ch.iter().map(|&v| (f64::from(v) - mean).powi(2)).sum::<f64>() / n as f64;
         let inv = 1.0 / (var + NORM_EPS).sqrt();
         for v in ch.iter_mut() {
             *v = ((f64::from(*v) - mean) * inv) as f32;
@@ -394,12 +365,9 @@ mod tests {
                             for kx in 0..conv.k {
                                 let iy = (oy * conv.stride + ky) as isize - conv.pad as isize;
                                 let ix = (ox * conv.stride + kx) as isize - conv.pad as isize;
-                                if iy >= 0 && ix >= 0 && (iy as usize) < x.h && (ix as usize) < x.w
-                                {
-                                    let wv = conv.weight
-                                        [((o * conv.cin + ci) * conv.k + ky) * conv.k + kx];
-                                    acc += f64::from(wv)
-                                        * f64::from(x.at(ci, iy as usize, ix as usize));
+                                if iy >= 0 && ix >= 0 && (iy as usize) < x.h && (ix as usize) < x.w {
+                                    let wv = conv.weight[((o * conv.cin + ci) * conv.k + ky) * conv.k + kx];
+                                    acc += f64::from(wv) * f64::from(x.at(ci, iy as usize, ix as usize));
                                 }
                             }
                         }
@@ -416,9 +384,7 @@ mod tests {
         let mut s = seed;
         (0..n)
             .map(|_| {
-                s = s
-                    .wrapping_mul(6364136223846793005)
-                    .wrapping_add(1442695040888963407);
+                s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
                 ((s >> 40) as f32 / (1u64 << 24) as f32) - 0.5
             })
             .collect()
@@ -426,12 +392,9 @@ mod tests {
 
     #[test]
     fn conv_matches_the_definition() {
-        for &(cin, cout, k, stride, pad, h, w) in &[
-            (3, 5, 3, 1, 1, 17, 23),
-            (4, 8, 3, 2, 1, 16, 20),
-            (6, 7, 1, 1, 0, 9, 700),
-            (2, 3, 3, 2, 1, 1, 1),
-        ] {
+        for &(cin, cout, k, stride, pad, h, w) in
+            &[(3, 5, 3, 1, 1, 17, 23), (4, 8, 3, 2, 1, 16, 20), (6, 7, 1, 1, 0, 9, 700), (2, 3, 3, 2, 1, 1, 1)]
+        {
             let conv = Conv {
                 cout,
                 cin,
@@ -442,25 +405,12 @@ mod tests {
                 bias: pseudo(cout, 2),
                 relu: cin % 2 == 0,
             };
-            let x = Map {
-                c: cin,
-                h,
-                w,
-                data: pseudo(cin * h * w, 3),
-            };
+            let x = Map { c: cin, h, w, data: pseudo(cin * h * w, 3) };
             let a = conv.forward(&x);
             let b = naive(&conv, &x);
             assert_eq!((a.c, a.h, a.w), (b.c, b.h, b.w));
-            let err = a
-                .data
-                .iter()
-                .zip(&b.data)
-                .map(|(p, q)| (p - q).abs())
-                .fold(0.0f32, f32::max);
-            assert!(
-                err < 1e-5,
-                "conv {cin}->{cout} k{k} s{stride}: max error {err}"
-            );
+            let err = a.data.iter().zip(&b.data).map(|(p, q)| (p - q).abs()).fold(0.0f32, f32::max);
+            assert!(err < 1e-5, "conv {cin}->{cout} k{k} s{stride}: max error {err}");
         }
     }
 
@@ -468,12 +418,7 @@ mod tests {
     fn bilinear_resize_follows_pytorch() {
         // F.interpolate(torch.arange(4.).view(1,1,1,4), (1,8), mode='bilinear')
         // = [0, 0.25, 0.75, 1.25, 1.75, 2.25, 2.75, 3].
-        let x = Map {
-            c: 1,
-            h: 1,
-            w: 4,
-            data: vec![0.0, 1.0, 2.0, 3.0],
-        };
+        let x = Map { c: 1, h: 1, w: 4, data: vec![0.0, 1.0, 2.0, 3.0] };
         let y = resize_bilinear(&x, 1, 8);
         assert_eq!(y.data, vec![0.0, 0.25, 0.75, 1.25, 1.75, 2.25, 2.75, 3.0]);
         // Same size is the identity.
@@ -483,12 +428,7 @@ mod tests {
 
     #[test]
     fn unshuffle_and_pool() {
-        let x = Map {
-            c: 1,
-            h: 4,
-            w: 4,
-            data: (0..16).map(|v| v as f32).collect(),
-        };
+        let x = Map { c: 1, h: 4, w: 4, data: (0..16).map(|v| v as f32).collect() };
         let u = pixel_unshuffle(&x, 2);
         assert_eq!((u.c, u.h, u.w), (4, 2, 2));
         assert_eq!(u.channel(0), &[0.0, 2.0, 8.0, 10.0]);

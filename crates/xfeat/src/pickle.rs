@@ -41,18 +41,13 @@ pub(crate) fn load(b: &[u8]) -> Result<Value, String> {
     let mut memo: Vec<Option<Value>> = Vec::new();
     let mut pos = 0usize;
     let take = |pos: &mut usize, n: usize| -> Result<&[u8], String> {
-        let s = b
-            .get(*pos..*pos + n)
-            .ok_or_else(|| format!("truncated at byte {}", *pos))?;
+        let s = b.get(*pos..*pos + n).ok_or_else(|| format!("truncated at byte {}", *pos))?;
         *pos += n;
         Ok(s)
     };
     let pop = |stack: &mut Vec<Value>| stack.pop().ok_or_else(|| "stack underflow".to_string());
     let pop_mark = |stack: &mut Vec<Value>| -> Result<Vec<Value>, String> {
-        let m = stack
-            .iter()
-            .rposition(|v| *v == Value::Mark)
-            .ok_or("MARK not found")?;
+        let m = stack.iter().rposition(|v| *v == Value::Mark).ok_or("MARK not found")?;
         let items = stack.split_off(m + 1);
         stack.pop(); // the mark itself, present by rposition
         Ok(items)
@@ -75,9 +70,7 @@ pub(crate) fn load(b: &[u8]) -> Result<Value, String> {
             }
             b'J' => {
                 let s = take(&mut pos, 4)?;
-                stack.push(Value::Int(i64::from(i32::from_le_bytes([
-                    s[0], s[1], s[2], s[3],
-                ]))));
+                stack.push(Value::Int(i64::from(i32::from_le_bytes([s[0], s[1], s[2], s[3]]))));
             }
             0x8a => {
                 // LONG1: n bytes little-endian two's complement.
@@ -116,10 +109,7 @@ pub(crate) fn load(b: &[u8]) -> Result<Value, String> {
                 // GLOBAL "module\nname\n"
                 let line = |pos: &mut usize| -> Result<String, String> {
                     let rest = b.get(*pos..).ok_or("truncated GLOBAL")?;
-                    let end = rest
-                        .iter()
-                        .position(|&c| c == b'\n')
-                        .ok_or("unterminated GLOBAL")?;
+                    let end = rest.iter().position(|&c| c == b'\n').ok_or("unterminated GLOBAL")?;
                     let s = String::from_utf8_lossy(&rest[..end]).into_owned();
                     *pos += end + 1;
                     Ok(s)
@@ -235,20 +225,14 @@ pub(crate) fn load(b: &[u8]) -> Result<Value, String> {
                     let s = take(&mut pos, 4)?;
                     u32::from_le_bytes([s[0], s[1], s[2], s[3]]) as usize
                 };
-                let v = memo
-                    .get(idx)
-                    .and_then(|v| v.clone())
-                    .ok_or_else(|| format!("memo {idx} is empty"))?;
+                let v = memo.get(idx).and_then(|v| v.clone()).ok_or_else(|| format!("memo {idx} is empty"))?;
                 stack.push(v);
             }
             b'0' => {
                 pop(&mut stack)?;
             }
             other => {
-                return Err(format!(
-                    "unsupported pickle opcode 0x{other:02x} at byte {}",
-                    pos - 1
-                ));
+                return Err(format!("unsupported pickle opcode 0x{other:02x} at byte {}", pos - 1));
             }
         }
     }
@@ -266,10 +250,7 @@ mod tests {
         assert_eq!(
             v,
             Value::Dict(vec![
-                (
-                    Value::Str("a".into()),
-                    Value::Tuple(vec![Value::Int(1), Value::Int(300), Value::Int(-2)])
-                ),
+                (Value::Str("a".into()), Value::Tuple(vec![Value::Int(1), Value::Int(300), Value::Int(-2)])),
                 (Value::Str("b".into()), Value::Str("xy".into())),
             ])
         );
@@ -277,15 +258,9 @@ mod tests {
 
     #[test]
     fn rejects_garbage_without_panicking() {
-        for bad in [
-            &b""[..],
-            b"\x80",
-            b"\x80\x02(",
-            b"\x80\x02\xff",
-            b"\x80\x02h\x05.",
-            b"\x80\x02X\xff\xff\xff\xff",
-            b"u.",
-        ] {
+        for bad in
+            [&b""[..], b"\x80", b"\x80\x02(", b"\x80\x02\xff", b"\x80\x02h\x05.", b"\x80\x02X\xff\xff\xff\xff", b"u."]
+        {
             assert!(load(bad).is_err(), "{bad:?}");
         }
     }

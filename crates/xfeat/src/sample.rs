@@ -22,21 +22,12 @@ pub(crate) fn map_coord(p: f32, full: usize, size: usize) -> f32 {
 /// Value of channel `k` at integer `(x, y)`, zero outside.
 #[inline]
 fn tap(m: &Map, k: usize, x: i64, y: i64) -> f32 {
-    if x >= 0 && y >= 0 && (x as usize) < m.w && (y as usize) < m.h {
-        m.at(k, y as usize, x as usize)
-    } else {
-        0.0
-    }
+    if x >= 0 && y >= 0 && (x as usize) < m.w && (y as usize) < m.h { m.at(k, y as usize, x as usize) } else { 0.0 }
 }
 
 /// Nearest-neighbour sample (round half to even, as `nearbyint`).
 pub(crate) fn nearest(m: &Map, k: usize, ix: f32, iy: f32) -> f32 {
-    tap(
-        m,
-        k,
-        ix.round_ties_even() as i64,
-        iy.round_ties_even() as i64,
-    )
+    tap(m, k, ix.round_ties_even() as i64, iy.round_ties_even() as i64)
 }
 
 /// Bilinear sample.
@@ -48,10 +39,7 @@ pub(crate) fn bilinear(m: &Map, k: usize, ix: f32, iy: f32) -> f32 {
     let sw = (x1 - ix) * (iy - y0);
     let se = (ix - x0) * (iy - y0);
     let (xa, ya) = (x0 as i64, y0 as i64);
-    tap(m, k, xa, ya) * nw
-        + tap(m, k, xa + 1, ya) * ne
-        + tap(m, k, xa, ya + 1) * sw
-        + tap(m, k, xa + 1, ya + 1) * se
+    tap(m, k, xa, ya) * nw + tap(m, k, xa + 1, ya) * ne + tap(m, k, xa, ya + 1) * sw + tap(m, k, xa + 1, ya + 1) * se
 }
 
 /// The four cubic-convolution weights for fractional offset `t`.
@@ -92,12 +80,7 @@ mod tests {
         // [-0.11025, 0.83125, 0.32625, -0.04725] (worked by hand), giving
         // 7.684 from the samples 5, 7, 9, 11. Cubic weights sum to 1.
         let (h, w) = (6, 9);
-        let m = Map {
-            c: 1,
-            h,
-            w,
-            data: (0..h * w).map(|i| (i % w) as f32 * 2.0 + 1.0).collect(),
-        };
+        let m = Map { c: 1, h, w, data: (0..h * w).map(|i| (i % w) as f32 * 2.0 + 1.0).collect() };
         let (ix, iy) = (3.3f32, 2.6f32);
         assert!((bilinear(&m, 0, ix, iy) - (ix * 2.0 + 1.0)).abs() < 1e-5);
         let mut out = [0.0f32];

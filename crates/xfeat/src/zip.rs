@@ -39,10 +39,7 @@ impl StoredZip {
     /// Parses the archive's directory. Errors name what is wrong.
     pub(crate) fn parse(bytes: &[u8]) -> Result<Self, String> {
         if bytes.len() < EOCD_LEN {
-            return Err(format!(
-                "{} bytes is too short for a zip archive",
-                bytes.len()
-            ));
+            return Err(format!("{} bytes is too short for a zip archive", bytes.len()));
         }
         let search_from = bytes.len().saturating_sub(EOCD_LEN + MAX_COMMENT);
         let eocd = (search_from..=bytes.len() - EOCD_LEN)
@@ -68,9 +65,7 @@ impl StoredZip {
             let extra_len = u16_at(bytes, at + 30).ok_or_else(short)? as usize;
             let comment_len = u16_at(bytes, at + 32).ok_or_else(short)? as usize;
             let local = u32_at(bytes, at + 42).ok_or_else(short)? as usize;
-            let name = bytes
-                .get(at + CDIR_LEN..at + CDIR_LEN + name_len)
-                .ok_or_else(short)?;
+            let name = bytes.get(at + CDIR_LEN..at + CDIR_LEN + name_len).ok_or_else(short)?;
             let name = String::from_utf8_lossy(name).into_owned();
             if method != METHOD_STORED || csize != usize_ {
                 return Err(format!(
@@ -98,10 +93,7 @@ impl StoredZip {
     pub(crate) fn find_suffix(&self, suffix: &str) -> Option<std::ops::Range<usize>> {
         self.entries
             .iter()
-            .find(|(n, _)| {
-                n.strip_suffix(suffix)
-                    .is_some_and(|p| p.ends_with('/') && p.len() > 1)
-            })
+            .find(|(n, _)| n.strip_suffix(suffix).is_some_and(|p| p.ends_with('/') && p.len() > 1))
             .map(|(_, r)| r.clone())
     }
 }

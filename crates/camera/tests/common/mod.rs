@@ -26,7 +26,12 @@ pub fn cameras() -> Vec<(&'static str, Camera)> {
         // EuRoC MAV cam0 (radial-tangential).
         (
             "opencv_euroc",
-            c(OpenCv, 752, 480, &[458.654, 457.296, 367.215, 248.375, -0.28340811, 0.07395907, 0.00019359, 1.76187114e-05]),
+            c(
+                OpenCv,
+                752,
+                480,
+                &[458.654, 457.296, 367.215, 248.375, -0.28340811, 0.07395907, 0.00019359, 1.76187114e-05],
+            ),
         ),
         ("full_opencv_tum_fr1", tum_fr1()),
         // Rational model (OpenCV CALIB_RATIONAL_MODEL style wide-angle lens).
@@ -39,7 +44,12 @@ pub fn cameras() -> Vec<(&'static str, Camera)> {
         // Mild fisheye, TUM-VI-like coefficients on a narrower image.
         (
             "fisheye_tumvi",
-            c(OpenCvFisheye, 512, 512, &[300.0, 300.0, 254.93, 256.90, 0.0034823894, 0.0007150348, -0.0020532361, 0.0002029367]),
+            c(
+                OpenCvFisheye,
+                512,
+                512,
+                &[300.0, 300.0, 254.93, 256.90, 0.0034823894, 0.0007150348, -0.0020532361, 0.0002029367],
+            ),
         ),
     ]
 }

@@ -29,15 +29,15 @@
 //! threads) of that run.
 
 use super::features::{data_dir, machine, peer_python, peer_script};
-use anyhow::{anyhow, bail, Context, Result};
+use anyhow::{Context, Result, anyhow, bail};
 use colslam_geometry::{Quat, Rigid3, SplitMix64, Vec3};
-use colslam_optim::synthetic::{perturb, synthetic_scene, SyntheticOptions};
+use colslam_optim::synthetic::{SyntheticOptions, perturb, synthetic_scene};
 use colslam_optim::{BaOptions, BaPose, BaReport, BundleAdjuster, IntrinsicsRefinement, LossFunction, Problem};
 use colslam_scene::{
-    read_model, write_model, CameraId, Image, ImageId, ModelFormat, Point3D, Point3DId, Reconstruction, TrackElement,
-    UNKNOWN_ERROR,
+    CameraId, Image, ImageId, ModelFormat, Point3D, Point3DId, Reconstruction, TrackElement, UNKNOWN_ERROR, read_model,
+    write_model,
 };
-use serde_json::{json, Value};
+use serde_json::{Value, json};
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::process::Command;
@@ -212,7 +212,9 @@ fn reconstruction_to_problem(rec: &Reconstruction) -> Result<Problem> {
         rec.points3d().flat_map(|(_, p)| p.track.iter().map(|el| el.image_id)).collect();
     let mut poses: BTreeMap<ImageId, (usize, usize)> = BTreeMap::new();
     for img in rec.images().filter(|i| i.registered && observing.contains(&i.id)) {
-        let cam = *cams.get(&img.camera_id).ok_or_else(|| anyhow!("image {} has unknown camera {}", img.id, img.camera_id))?;
+        let cam = *cams
+            .get(&img.camera_id)
+            .ok_or_else(|| anyhow!("image {} has unknown camera {}", img.id, img.camera_id))?;
         poses.insert(img.id, (problem.add_pose(BaPose::variable(img.cam_from_world)), cam));
     }
     for (pid, p) in rec.points3d() {
@@ -272,7 +274,10 @@ fn real_model(frames: usize, threads: usize, quiet: bool) -> Result<Reconstructi
             bail!("dataset {} not found", dataset.display());
         }
         if !quiet {
-            eprintln!("bench ba: reconstructing {frames} frames of {REAL_DATASET} with pycolmap into {} (once)", dir.display());
+            eprintln!(
+                "bench ba: reconstructing {frames} frames of {REAL_DATASET} with pycolmap into {} (once)",
+                dir.display()
+            );
         }
         let py = peer_python()?;
         let script = peer_script("make_tum_model.py")?;
@@ -316,7 +321,9 @@ fn remove_near_points(rec: &mut Reconstruction) -> Result<usize> {
     let near: Vec<Point3DId> = rec
         .points3d()
         .filter(|(_, p)| {
-            p.track.iter().any(|el| rec.image(el.image_id).is_some_and(|img| img.cam_from_world.transform_point(&p.xyz).z < min_depth))
+            p.track.iter().any(|el| {
+                rec.image(el.image_id).is_some_and(|img| img.cam_from_world.transform_point(&p.xyz).z < min_depth)
+            })
         })
         .map(|(id, _)| id)
         .collect();
@@ -391,8 +398,10 @@ fn run_ceres(dir: &Path, peer_loss: (&str, f64), threads: usize, repeats: usize)
     if !out.status.success() {
         bail!("{} failed on {}:\n{}", script.display(), dir.display(), String::from_utf8_lossy(&out.stderr));
     }
-    let v: Value = serde_json::from_slice(&out.stdout).with_context(|| format!("{} printed no valid JSON", script.display()))?;
-    let num = |k: &str| v.get(k).and_then(Value::as_f64).ok_or_else(|| anyhow!("{} output lacks `{k}`", script.display()));
+    let v: Value =
+        serde_json::from_slice(&out.stdout).with_context(|| format!("{} printed no valid JSON", script.display()))?;
+    let num =
+        |k: &str| v.get(k).and_then(Value::as_f64).ok_or_else(|| anyhow!("{} output lacks `{k}`", script.display()));
     let text = |k: &str| v.get(k).and_then(Value::as_str).unwrap_or("?").to_string();
     let run = Run {
         wall_s: num("wall_s")?,
@@ -461,7 +470,9 @@ pub fn run(args: &Args, quiet: bool) -> Result<()> {
         // are removed before the benchmark.
         let removed = remove_near_points(&mut rec)?;
         if !quiet {
-            eprintln!("bench ba: real model: {removed} point(s) nearer than {REAL_MIN_DEPTH_FRACTION} x median depth removed");
+            eprintln!(
+                "bench ba: real model: {removed} point(s) nearer than {REAL_MIN_DEPTH_FRACTION} x median depth removed"
+            );
         }
         perturb_reconstruction(&mut rec, PERTURB_SEED)?;
         let spec = Spec {
@@ -583,7 +594,12 @@ fn print_table(out: &Value) {
             f(&p["ceres_final_cost"]),
             100.0 * f(&p["final_cost_rel_diff"])
         );
-        println!("  {:<22} {:>16} {:>16}", "iterations", p["ours_iterations"].to_string(), p["ceres_iterations"].to_string());
+        println!(
+            "  {:<22} {:>16} {:>16}",
+            "iterations",
+            p["ours_iterations"].to_string(),
+            p["ceres_iterations"].to_string()
+        );
         println!("  {:<22} {:>16.3} {:>16.3} {:>10.2}", "wall s", f(&p["ours_s"]), f(&p["ceres_s"]), f(&p["ratio"]));
         println!(
             "  {:<22} {:>16.3} {:>16.3} {:>10.2}",
@@ -644,14 +660,20 @@ mod tests {
         let a = BundleAdjuster::solve(&mut original, &options).unwrap();
         let b = BundleAdjuster::solve(&mut back, &options).unwrap();
         assert_eq!(a.num_observations, b.num_observations);
-        assert!((a.initial_cost - b.initial_cost).abs() <= 1e-9 * a.initial_cost, "{} vs {}", a.initial_cost, b.initial_cost);
+        assert!(
+            (a.initial_cost - b.initial_cost).abs() <= 1e-9 * a.initial_cost,
+            "{} vs {}",
+            a.initial_cost,
+            b.initial_cost
+        );
         assert!((a.final_cost - b.final_cost).abs() <= 1e-9 * a.final_cost, "{} vs {}", a.final_cost, b.final_cost);
         assert!(b.final_cost < b.initial_cost);
     }
 
     #[test]
     fn near_points_are_removed_from_a_model() {
-        let scene = synthetic_scene(&SyntheticOptions { num_poses: 4, num_points: 100, seed: 5, ..Default::default() }).unwrap();
+        let scene = synthetic_scene(&SyntheticOptions { num_poses: 4, num_points: 100, seed: 5, ..Default::default() })
+            .unwrap();
         let mut rec = problem_to_reconstruction(&scene.problem).unwrap();
         let n = rec.num_points3d();
         // Move one point onto the centre of an image that observes it.

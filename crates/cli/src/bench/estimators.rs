@@ -142,31 +142,33 @@ pub fn run(args: &Args, quiet: bool) -> Result<()> {
         ess_err.clear();
         abs_err.clear();
         for seed in 0..args.repeats as u64 {
-            let opts = RelativePoseOptions { ransac: ransac(ESSENTIAL_MAX_ERROR_PX, seed), ..RelativePoseOptions::default() };
+            let opts =
+                RelativePoseOptions { ransac: ransac(ESSENTIAL_MAX_ERROR_PX, seed), ..RelativePoseOptions::default() };
             let t0 = Instant::now();
             let r = estimate_relative_pose(&rel.x1, &rel.x2, &opts).context("our relative pose failed")?;
             ess_times.push(t0.elapsed().as_secs_f64() * 1e3);
             let p = &r.cam2_from_cam1;
-            ess_err.push((rotation_error_deg(p, &rel.cam2_from_cam1), translation_dir_error_deg(&p.translation, &rel.cam2_from_cam1.translation)));
+            ess_err.push((
+                rotation_error_deg(p, &rel.cam2_from_cam1),
+                translation_dir_error_deg(&p.translation, &rel.cam2_from_cam1.translation),
+            ));
             ess_last = Some(r);
         }
         let mut abs_times = Vec::new();
         for seed in 0..args.repeats as u64 {
-            let opts = AbsolutePoseOptions { ransac: ransac(ABSOLUTE_MAX_ERROR_PX, seed), ..AbsolutePoseOptions::default() };
+            let opts =
+                AbsolutePoseOptions { ransac: ransac(ABSOLUTE_MAX_ERROR_PX, seed), ..AbsolutePoseOptions::default() };
             let t0 = Instant::now();
             let r = estimate_absolute_pose(&abs.points2d, &abs.points3d, &opts).context("our absolute pose failed")?;
             abs_times.push(t0.elapsed().as_secs_f64() * 1e3);
             let p = &r.cam_from_world;
-            abs_err.push((rotation_error_deg(p, &abs.cam_from_world), (p.center() - abs.cam_from_world.center()).norm()));
+            abs_err
+                .push((rotation_error_deg(p, &abs.cam_from_world), (p.center() - abs.cam_from_world.center()).norm()));
             abs_last = Some(r);
         }
         peer = run_peer("bench_estimators.py", &input)?;
-        let now = [
-            median(&ess_times),
-            num(&peer, "essential_ms")?,
-            median(&abs_times),
-            num(&peer, "absolute_pose_ms")?,
-        ];
+        let now =
+            [median(&ess_times), num(&peer, "essential_ms")?, median(&abs_times), num(&peer, "absolute_pose_ms")?];
         for (b, n) in best.iter_mut().zip(now) {
             *b = b.min(n);
         }
@@ -192,7 +194,8 @@ pub fn run(args: &Args, quiet: bool) -> Result<()> {
     let ours_abs_rot = med(abs_err.iter().map(|e| e.0).collect());
     let ours_abs_pos = med(abs_err.iter().map(|e| e.1).collect());
     let their_rel_rot = med(their_rel.iter().map(|p| rotation_error_deg(p, &gt_rel)).collect());
-    let their_rel_dir = med(their_rel.iter().map(|p| translation_dir_error_deg(&p.translation, &gt_rel.translation)).collect());
+    let their_rel_dir =
+        med(their_rel.iter().map(|p| translation_dir_error_deg(&p.translation, &gt_rel.translation)).collect());
     let their_abs_rot = med(their_abs.iter().map(|p| rotation_error_deg(p, &gt_abs)).collect());
     let their_abs_pos = med(their_abs.iter().map(|p| (p.center() - gt_abs.center()).norm()).collect());
 
@@ -255,9 +258,17 @@ pub fn run(args: &Args, quiet: bool) -> Result<()> {
     let rows = [
         ("essential 2000 corr. 50% outl., ms/call", f(&result["essential_ms"]), f(&result["pycolmap_essential_ms"])),
         ("  rotation error, deg", f(&e["rotation_error_deg"]), f(&e["pycolmap_rotation_error_deg"])),
-        ("  translation direction error, deg", f(&e["translation_dir_error_deg"]), f(&e["pycolmap_translation_dir_error_deg"])),
+        (
+            "  translation direction error, deg",
+            f(&e["translation_dir_error_deg"]),
+            f(&e["pycolmap_translation_dir_error_deg"]),
+        ),
         ("  inliers", f(&e["inliers"]), f(&e["pycolmap_inliers"])),
-        ("absolute pose 500 corr. 30% outl., ms/call", f(&result["absolute_pose_ms"]), f(&result["pycolmap_absolute_pose_ms"])),
+        (
+            "absolute pose 500 corr. 30% outl., ms/call",
+            f(&result["absolute_pose_ms"]),
+            f(&result["pycolmap_absolute_pose_ms"]),
+        ),
         ("  rotation error, deg", f(&a["rotation_error_deg"]), f(&a["pycolmap_rotation_error_deg"])),
         ("  position error (scene units)", f(&a["position_error"]), f(&a["pycolmap_position_error"])),
         ("  inliers", f(&a["inliers"]), f(&a["pycolmap_inliers"])),

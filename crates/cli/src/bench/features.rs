@@ -310,7 +310,11 @@ fn score_pair(
 
 /// Per-octave shares as JSON (`null` for empty octaves).
 fn octave_json(t: &OctaveTally) -> Value {
-    json!(t.iter().map(|[g, n]| if *n > 0 { json!({"share": *g as f64 / *n as f64, "matches": n}) } else { Value::Null }).collect::<Vec<_>>())
+    json!(
+        t.iter()
+            .map(|[g, n]| if *n > 0 { json!({"share": *g as f64 / *n as f64, "matches": n}) } else { Value::Null })
+            .collect::<Vec<_>>()
+    )
 }
 
 fn pool(threads: usize) -> Result<rayon::ThreadPool> {
@@ -343,11 +347,7 @@ fn json_points(v: &Value) -> Vec<[f64; 3]> {
 
 fn json_matches(v: &Value) -> Vec<(usize, usize)> {
     v.as_array()
-        .map(|a| {
-            a.iter()
-                .filter_map(|m| Some((m[0].as_u64()? as usize, m[1].as_u64()? as usize)))
-                .collect()
-        })
+        .map(|a| a.iter().filter_map(|m| Some((m[0].as_u64()? as usize, m[1].as_u64()? as usize))).collect())
         .unwrap_or_default()
 }
 
@@ -464,7 +464,8 @@ pub fn run(args: &Args, quiet: bool) -> Result<()> {
     let multi = pool(MULTI_THREADS)?;
     // Mutual nearest neighbours without ratio or distance filter, as
     // BFMatcher(NORM_HAMMING, crossCheck=True).
-    let bf_like = NnMatcher::new(NnMatcherOptions { cross_check: true, max_ratio: 1.0, max_hamming: 256, ..Default::default() })?;
+    let bf_like =
+        NnMatcher::new(NnMatcherOptions { cross_check: true, max_ratio: 1.0, max_hamming: 256, ..Default::default() })?;
     let mut ours = time_ours(&frames, args.repeats, &one, &multi, &bf_like)?;
 
     // Ours: match quality at QUALITY_FEATURES keypoints.
@@ -477,11 +478,8 @@ pub fn run(args: &Args, quiet: bool) -> Result<()> {
             .ok_or_else(|| anyhow!("{}: calibration matrix is singular", cam_path.display()))?;
         let (a, b) = (binary(&w[0])?, binary(&w[1])?);
         let (p1, p2) = (points(&w[0]), points(&w[1]));
-        let m: Vec<(usize, usize)> = multi
-            .install(|| bf_like.match_binary(a, b))
-            .iter()
-            .map(|m| (m.query as usize, m.train as usize))
-            .collect();
+        let m: Vec<(usize, usize)> =
+            multi.install(|| bf_like.match_binary(a, b)).iter().map(|m| (m.query as usize, m.train as usize)).collect();
         let (g, t) = score_pair(&cam, &k, &f, &p1, &p2, &m, &mut our_octaves);
         good += g;
         total += t;
@@ -574,8 +572,8 @@ pub fn run(args: &Args, quiet: bool) -> Result<()> {
         .collect::<Result<_>>()?;
     let cv_counts: Vec<u64> =
         cv["match_counts"].as_array().map(|a| a.iter().filter_map(Value::as_u64).collect()).unwrap_or_default();
-    let same_counts = our_counts.len() == cv_counts.len()
-        && our_counts.iter().zip(&cv_counts).all(|(a, b)| *a as u64 == *b);
+    let same_counts =
+        our_counts.len() == cv_counts.len() && our_counts.iter().zip(&cv_counts).all(|(a, b)| *a as u64 == *b);
     let cv_quality = |th: u8, by_octave: &mut OctaveTally| -> Result<(usize, usize)> {
         let pairs = cv["pairs"][th.to_string()].as_array().ok_or_else(|| anyhow!("peer output lacks pairs.{th}"))?;
         if pairs.len() != fs.len() {
@@ -583,8 +581,15 @@ pub fn run(args: &Args, quiet: bool) -> Result<()> {
         }
         let (mut g, mut t) = (0usize, 0usize);
         for (p, f) in pairs.iter().zip(&fs) {
-            let (a, b) =
-                score_pair(&cam, &k, f, &json_points(&p["kp1"]), &json_points(&p["kp2"]), &json_matches(&p["matches"]), by_octave);
+            let (a, b) = score_pair(
+                &cam,
+                &k,
+                f,
+                &json_points(&p["kp1"]),
+                &json_points(&p["kp2"]),
+                &json_matches(&p["matches"]),
+                by_octave,
+            );
             g += a;
             t += b;
         }
@@ -642,7 +647,15 @@ pub fn run(args: &Args, quiet: bool) -> Result<()> {
     }
     let r = |a: f64, b: f64| if b > 0.0 { format!("{:.2}", a / b) } else { "-".into() };
     let m = machine();
-    println!("bench features: {} ({} frames, {} pairs), {} cores, {}, load {}", DATASET, frames.len(), fs.len(), m["nproc"], m["cpu_model"].as_str().unwrap_or("?"), m["loadavg"].as_str().unwrap_or("?"));
+    println!(
+        "bench features: {} ({} frames, {} pairs), {} cores, {}, load {}",
+        DATASET,
+        frames.len(),
+        fs.len(),
+        m["nproc"],
+        m["cpu_model"].as_str().unwrap_or("?"),
+        m["loadavg"].as_str().unwrap_or("?")
+    );
     println!("{:<38} {:>10} {:>10} {:>10}", "measure", "colslam", "OpenCV", "ours/peer");
     let rows = [
         ("ORB 1000 kp, ms/frame (1 thread)", o("orb_ms_1000_1t"), cv_ms_1000),
@@ -658,7 +671,15 @@ pub fn run(args: &Args, quiet: bool) -> Result<()> {
     for (name, a, b) in rows {
         println!("{name:<38} {a:>10.3} {b:>10.3} {:>10}", r(a, b));
     }
-    println!("(identical match counts on identical descriptors: {same_counts}; OpenCV default FAST threshold 20: {:.1} consistent matches per pair, share {:.3})", cv_def_good as f64 / pairs, ratio(cv_def_good, cv_def_total));
-    println!("(ours with the default matcher, ratio 0.9 and <= 64 bits: {:.1} consistent matches per pair, share {:.3})", good_def as f64 / pairs, ratio(good_def, total_def));
+    println!(
+        "(identical match counts on identical descriptors: {same_counts}; OpenCV default FAST threshold 20: {:.1} consistent matches per pair, share {:.3})",
+        cv_def_good as f64 / pairs,
+        ratio(cv_def_good, cv_def_total)
+    );
+    println!(
+        "(ours with the default matcher, ratio 0.9 and <= 64 bits: {:.1} consistent matches per pair, share {:.3})",
+        good_def as f64 / pairs,
+        ratio(good_def, total_def)
+    );
     Ok(())
 }

@@ -14,8 +14,8 @@ mod report;
 mod runner;
 mod sequences;
 
-use anyhow::{bail, Context, Result};
-use report::{RunInfo, RunRow, Status, SuiteReport, MEASURED_EARLIER, PAPER};
+use anyhow::{Context, Result, bail};
+use report::{MEASURED_EARLIER, PAPER, RunInfo, RunRow, Status, SuiteReport};
 use runner::{last_lines, run_measured};
 use sequences::{CameraSpec, Sequence};
 use serde_json::Value;
@@ -168,7 +168,8 @@ fn evaluate_into(row: &mut RunRow, ctx: &Ctx, gt: &Path, dir: &Path, keyframes_o
     row.ate_matched = Some(rep.matched);
     let top = dir.join("ate.png");
     let side = dir.join("side.png");
-    let title = format!("{} / {}: ATE RMSE {:.2} cm, {} poses", row.sequence, row.system, 100.0 * rep.ate_rmse, rep.matched);
+    let title =
+        format!("{} / {}: ATE RMSE {:.2} cm, {} poses", row.sequence, row.system, 100.0 * rep.ate_rmse, rep.matched);
     for (path, result) in [
         (&top, colslam_eval::plot::plot_evaluation(&rep, &top).map_err(anyhow::Error::from)),
         (&side, plot::plot_side_view(&rep, &title, &side)),
@@ -186,7 +187,10 @@ fn evaluate_into(row: &mut RunRow, ctx: &Ctx, gt: &Path, dir: &Path, keyframes_o
 
 /// Runs colslam once on `seq` as a measured subprocess.
 fn run_colslam(ctx: &Ctx, seq: &Sequence, setting: &str, extra: &[String], run: usize) -> RunRow {
-    let rel = PathBuf::from("runs").join(slug(&seq.name)).join(slug(&if setting.is_empty() { COLSLAM.to_string() } else { format!("{COLSLAM}-{setting}") })).join(format!("run{run}"));
+    let rel = PathBuf::from("runs")
+        .join(slug(&seq.name))
+        .join(slug(&if setting.is_empty() { COLSLAM.to_string() } else { format!("{COLSLAM}-{setting}") }))
+        .join(format!("run{run}"));
     let dir = ctx.out.join(&rel);
     let mut row = RunRow::new(&seq.name, COLSLAM, setting, run, rel_string(&rel));
     if let Err(e) = fresh_dir(&dir) {
@@ -494,8 +498,12 @@ pub fn run(args: &SuiteArgs, quiet: bool) -> Result<()> {
     if !sweeps.is_empty() {
         let default_synth = format!("{}{}", sequences::SYNTHETIC_PREFIX, colslam_synth::SynthOptions::default().frames);
         let preferred = [sequences::TUM_SEQUENCE, default_synth.as_str()];
-        let mut targets: Vec<&Sequence> =
-            seqs.iter().zip(&runnable).filter(|(s, ok)| **ok && preferred.contains(&s.name.as_str())).map(|(s, _)| s).collect();
+        let mut targets: Vec<&Sequence> = seqs
+            .iter()
+            .zip(&runnable)
+            .filter(|(s, ok)| **ok && preferred.contains(&s.name.as_str()))
+            .map(|(s, _)| s)
+            .collect();
         if targets.is_empty() {
             targets = seqs.iter().zip(&runnable).filter(|(_, ok)| **ok).map(|(s, _)| s).collect();
         }

@@ -177,7 +177,13 @@ fn draw_top_view(c: &mut Canvas, report: &EvalReport, r: &Rect) {
     let ay = Axis { lo: cb - 0.5 * ph / px_per_unit, hi: cb + 0.5 * ph / px_per_unit, p0: r.y1, p1: r.y0 };
     let (na, nb) = (AXIS_NAMES[ka], AXIS_NAMES[kb]);
     draw_frame(c, r, &ax, &ay, &format!("{na} [m]"), &format!("{nb} [m]"));
-    c.text_centered(0.5 * (r.x0 + r.x1), r.y0 - PANEL_TITLE_OFFSET, &format!("top view ({na}-{nb})"), LABEL_SCALE, TEXT_COLOR);
+    c.text_centered(
+        0.5 * (r.x0 + r.x1),
+        r.y0 - PANEL_TITLE_OFFSET,
+        &format!("top view ({na}-{nb})"),
+        LABEL_SCALE,
+        TEXT_COLOR,
+    );
 
     let project = |pts: &[colslam_geometry::Vec3]| -> Vec<(f64, f64)> {
         pts.iter().map(|p| (ax.map(p[ka]), ay.map(p[kb]))).collect()

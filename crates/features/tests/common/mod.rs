@@ -21,10 +21,7 @@ impl Warp {
     pub fn apply(&self, x: f64, y: f64) -> (f64, f64) {
         let (s, c) = self.angle_deg.to_radians().sin_cos();
         let (dx, dy) = (x - self.src_centre.0, y - self.src_centre.1);
-        (
-            self.scale * (c * dx - s * dy) + self.dst_centre.0,
-            self.scale * (s * dx + c * dy) + self.dst_centre.1,
-        )
+        (self.scale * (c * dx - s * dy) + self.dst_centre.0, self.scale * (s * dx + c * dy) + self.dst_centre.1)
     }
 
     /// Inverse map: destination pixel to source pixel.
@@ -61,7 +58,8 @@ pub fn warp_image(src: &Image, angle_deg: f64, scale: f64) -> (Image, Warp) {
             let (x1, y1) = ((x0 + 1).min(src.width() - 1), (y0 + 1).min(src.height() - 1));
             let (fx, fy) = (sx - x0 as f64, sy - y0 as f64);
             let p = |xx: usize, yy: usize| src.get(xx, yy, 0) as f64;
-            let v = (1.0 - fy) * ((1.0 - fx) * p(x0, y0) + fx * p(x1, y0)) + fy * ((1.0 - fx) * p(x0, y1) + fx * p(x1, y1));
+            let v =
+                (1.0 - fy) * ((1.0 - fx) * p(x0, y0) + fx * p(x1, y0)) + fy * ((1.0 - fx) * p(x0, y1) + fx * p(x1, y1));
             out.set(x, y, 0, v.round().clamp(0.0, 255.0) as u8);
         }
     }

@@ -107,7 +107,8 @@ impl<'a> Reader<'a> {
         for x in &mut v {
             *x = self.f64(what)?;
         }
-        super::pose_from_parts([v[0], v[1], v[2], v[3]], [v[4], v[5], v[6]]).map_err(|e| self.corrupt(at, format!("{what}: {e}")))
+        super::pose_from_parts([v[0], v[1], v[2], v[3]], [v[4], v[5], v[6]])
+            .map_err(|e| self.corrupt(at, format!("{what}: {e}")))
     }
 
     /// Reads a count of records of at least `min_bytes` each and checks that

@@ -339,17 +339,18 @@ fn assemble(raw: RawModel, paths: &ModelPaths) -> Result<Reconstruction, SceneEr
         if !frame_ids.insert(f.id) {
             return Err(inconsistent(&paths.frames, f.loc, format!("duplicate frame id {}", f.id)));
         }
-        let rig = rigs
-            .get(&f.rig_id)
-            .ok_or_else(|| inconsistent(&paths.frames, f.loc, format!("frame {} uses missing rig {}", f.id, f.rig_id)))?;
+        let rig = rigs.get(&f.rig_id).ok_or_else(|| {
+            inconsistent(&paths.frames, f.loc, format!("frame {} uses missing rig {}", f.id, f.rig_id))
+        })?;
         for d in f.data.iter().filter(|d| d.kind == SENSOR_CAMERA) {
-            let pos = rig.sensors.iter().position(|s| s.kind == SENSOR_CAMERA && s.id == d.sensor_id).ok_or_else(|| {
-                inconsistent(
-                    &paths.frames,
-                    f.loc,
-                    format!("frame {} names camera {} that rig {} lacks", f.id, d.sensor_id, f.rig_id),
-                )
-            })?;
+            let pos =
+                rig.sensors.iter().position(|s| s.kind == SENSOR_CAMERA && s.id == d.sensor_id).ok_or_else(|| {
+                    inconsistent(
+                        &paths.frames,
+                        f.loc,
+                        format!("frame {} names camera {} that rig {} lacks", f.id, d.sensor_id, f.rig_id),
+                    )
+                })?;
             // The reference sensor (first) has the rig's frame; others need
             // their sensor_from_rig to predict the image pose.
             let expected = match (pos, rig.sensors.get(pos).and_then(|s| s.pose)) {
@@ -401,20 +402,11 @@ fn assemble(raw: RawModel, paths: &ModelPaths) -> Result<Reconstruction, SceneEr
                 ));
             }
         }
-        let points2d: Vec<Point2D> = im
-            .points2d
-            .iter()
-            .map(|(xy, p)| Point2D { xy: *xy, point3d_id: p.map(Point3DId) })
-            .collect();
+        let points2d: Vec<Point2D> =
+            im.points2d.iter().map(|(xy, p)| Point2D { xy: *xy, point3d_id: p.map(Point3DId) }).collect();
         num_links += points2d.iter().filter(|p| p.point3d_id.is_some()).count();
-        let image = Image {
-            id,
-            name: im.name,
-            camera_id,
-            cam_from_world: im.cam_from_world,
-            points2d,
-            registered: true,
-        };
+        let image =
+            Image { id, name: im.name, camera_id, cam_from_world: im.cam_from_world, points2d, registered: true };
         if images.insert(id, image).is_some() {
             return Err(inconsistent(&paths.images, im.loc, format!("duplicate image id {id}")));
         }

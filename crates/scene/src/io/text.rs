@@ -52,7 +52,8 @@ impl<'a> Line<'a> {
         for x in &mut v {
             *x = self.next(what)?;
         }
-        super::pose_from_parts([v[0], v[1], v[2], v[3]], [v[4], v[5], v[6]]).map_err(|e| self.err(format!("{what}: {e}")))
+        super::pose_from_parts([v[0], v[1], v[2], v[3]], [v[4], v[5], v[6]])
+            .map_err(|e| self.err(format!("{what}: {e}")))
     }
 
     fn sensor_type(&mut self) -> Result<i32, SceneError> {
@@ -126,13 +127,14 @@ pub(super) fn parse_images(path: &Path, text: &str) -> Result<Vec<RawImage>, Sce
         let mut pline = Line::new(path, pnum, praw.trim());
         let toks = pline.rest();
         if !toks.len().is_multiple_of(3) {
-            return Err(pline.err(format!("POINTS2D has {} values, not a multiple of 3 (X, Y, POINT3D_ID)", toks.len())));
+            return Err(
+                pline.err(format!("POINTS2D has {} values, not a multiple of 3 (X, Y, POINT3D_ID)", toks.len()))
+            );
         }
         let mut points2d = Vec::with_capacity(toks.len() / 3);
         for c in toks.chunks_exact(3) {
-            let num = |t: &str, what: &str| {
-                t.parse::<f64>().map_err(|_| pline.err(format!("{what} {t:?} is not a number")))
-            };
+            let num =
+                |t: &str, what: &str| t.parse::<f64>().map_err(|_| pline.err(format!("{what} {t:?} is not a number")));
             let (x, y) = (num(c[0], "point2D x")?, num(c[1], "point2D y")?);
             let pid = if c[2] == "-1" {
                 None

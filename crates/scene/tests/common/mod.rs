@@ -48,7 +48,8 @@ pub fn synthetic_model(seed: u64) -> Reconstruction {
     for (k, (&iid, &reg)) in order.iter().zip(&registered).enumerate() {
         let camera_id = cam_ids[k % cam_ids.len()];
         let rotation = Quat::from_euler_angles(rng.uniform(-0.1, 0.1), rng.uniform(-0.1, 0.1), rng.uniform(-0.2, 0.2));
-        let pose = Rigid3::new(rotation, Vec3::new(rng.uniform(-0.5, 0.5), rng.uniform(-0.5, 0.5), rng.uniform(-0.2, 0.2)));
+        let pose =
+            Rigid3::new(rotation, Vec3::new(rng.uniform(-0.5, 0.5), rng.uniform(-0.5, 0.5), rng.uniform(-0.2, 0.2)));
         let mut img = Image::new(ImageId(iid), format!("seq/img_{iid:04}.png"), camera_id, Vec::new());
         img.cam_from_world = pose;
         for _ in 0..(5 + k) {
@@ -90,8 +91,13 @@ pub fn to_json(rec: &Reconstruction, registered_only: bool) -> Value {
     let cameras: Vec<Value> = rec
         .cameras()
         .map(|c| {
-            json!([c.id.0, c.camera.model.name(), c.camera.width, c.camera.height,
-                   c.camera.params.iter().map(|p| bits(*p)).collect::<Vec<_>>()])
+            json!([
+                c.id.0,
+                c.camera.model.name(),
+                c.camera.width,
+                c.camera.height,
+                c.camera.params.iter().map(|p| bits(*p)).collect::<Vec<_>>()
+            ])
         })
         .collect();
     let images: Vec<Value> = rec
@@ -99,7 +105,12 @@ pub fn to_json(rec: &Reconstruction, registered_only: bool) -> Value {
         .filter(|i| i.registered || !registered_only)
         .map(|i| {
             let pose: Vec<Value> = if i.registered {
-                i.cam_from_world.quat_wxyz().iter().chain(i.cam_from_world.translation.iter()).map(|v| bits(*v)).collect()
+                i.cam_from_world
+                    .quat_wxyz()
+                    .iter()
+                    .chain(i.cam_from_world.translation.iter())
+                    .map(|v| bits(*v))
+                    .collect()
             } else {
                 Vec::new()
             };
@@ -114,8 +125,13 @@ pub fn to_json(rec: &Reconstruction, registered_only: bool) -> Value {
     let points: Vec<Value> = rec
         .points3d()
         .map(|(id, p)| {
-            json!([id.0, p.xyz.iter().map(|v| bits(*v)).collect::<Vec<_>>(), p.color, p.error.to_bits(),
-                   p.track.iter().map(|e| json!([e.image_id.0, e.point2d_idx])).collect::<Vec<_>>()])
+            json!([
+                id.0,
+                p.xyz.iter().map(|v| bits(*v)).collect::<Vec<_>>(),
+                p.color,
+                p.error.to_bits(),
+                p.track.iter().map(|e| json!([e.image_id.0, e.point2d_idx])).collect::<Vec<_>>()
+            ])
         })
         .collect();
     let mut reg: Vec<u32> = rec.registered_image_ids().iter().map(|i| i.0).collect();
@@ -139,10 +155,8 @@ pub fn assert_json_eq(ours: &Value, theirs: &Value, context: &str) {
 
 /// Runs tests/py/dump_model.py on a folder.
 pub fn pycolmap_dump(py: &Path, dir: &Path, mode: &str) -> Value {
-    let out = colslam_testutil::run_python(
-        py,
-        &[script("dump_model.py").to_str().unwrap(), dir.to_str().unwrap(), mode],
-    );
+    let out =
+        colslam_testutil::run_python(py, &[script("dump_model.py").to_str().unwrap(), dir.to_str().unwrap(), mode]);
     serde_json::from_str(&out).expect("dump_model.py prints JSON")
 }
 

@@ -36,10 +36,7 @@ pub fn weights() -> Option<PathBuf> {
 /// The first frame of tum_fr1_rpy_sub (sorted by name), if the dataset is there.
 pub fn first_frame() -> Option<Image> {
     let dir = colslam_testutil::dataset("tum_fr1_rpy_sub")?.join("rgb");
-    let mut names: Vec<PathBuf> = std::fs::read_dir(&dir)
-        .unwrap()
-        .map(|e| e.unwrap().path())
-        .collect();
+    let mut names: Vec<PathBuf> = std::fs::read_dir(&dir).unwrap().map(|e| e.unwrap().path()).collect();
     names.sort();
     Some(Image::read(&names[0]).unwrap())
 }

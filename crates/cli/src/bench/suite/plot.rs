@@ -4,8 +4,8 @@
 //! equal aspect. Drawn with colslam_eval's rasteriser.
 
 use anyhow::{Context, Result};
-use colslam_eval::plot::{Canvas, Rgb, ESTIMATE_COLOR, REFERENCE_COLOR};
 use colslam_eval::EvalReport;
+use colslam_eval::plot::{Canvas, ESTIMATE_COLOR, REFERENCE_COLOR, Rgb};
 use std::path::Path;
 
 /// Image size, pixels.

@@ -406,7 +406,8 @@ pub fn summary_table(rows: &[SummaryRow]) -> String {
 }
 
 fn reference_table(refs: &[Reference]) -> String {
-    let mut t = String::from("| sequence | system | registered | ATE RMSE (cm) | time | source |\n|---|---|---|---|---|---|\n");
+    let mut t =
+        String::from("| sequence | system | registered | ATE RMSE (cm) | time | source |\n|---|---|---|---|---|---|\n");
     for r in refs {
         let _ = writeln!(
             t,
@@ -476,14 +477,24 @@ pub fn markdown(r: &SuiteReport) -> String {
     s.push_str(&summary_table(&r.summary));
     let failures: Vec<&RunRow> = r.runs.iter().filter(|x| x.status != Status::Ok).collect();
     if !failures.is_empty() {
-        s.push_str("\n## Failures and runs not made\n\n| sequence | system | run | status | reason |\n|---|---|---|---|---|\n");
+        s.push_str(
+            "\n## Failures and runs not made\n\n| sequence | system | run | status | reason |\n|---|---|---|---|---|\n",
+        );
         for x in failures {
             let label = if x.setting.is_empty() { x.system.clone() } else { format!("{} ({})", x.system, x.setting) };
             let reason = x.reason.clone().unwrap_or_else(|| match x.localized_pct {
                 Some(p) => format!("{p:.1} % of frames localised"),
                 None => "-".into(),
             });
-            let _ = writeln!(s, "| {} | {} | {} | {} | {} |", x.sequence, label, x.run, x.status.label(), reason.replace('|', "/"));
+            let _ = writeln!(
+                s,
+                "| {} | {} | {} | {} | {} |",
+                x.sequence,
+                label,
+                x.run,
+                x.status.label(),
+                reason.replace('|', "/")
+            );
         }
     }
     s.push_str("\n## Peers\n\n");
@@ -501,7 +512,8 @@ pub fn markdown(r: &SuiteReport) -> String {
     s.push_str("\n## Plots\n\n");
     for x in &r.summary {
         if !x.plots.is_empty() {
-            let links: Vec<String> = x.plots.iter().map(|p| format!("[{}]({p})", p.rsplit('/').next().unwrap_or(p))).collect();
+            let links: Vec<String> =
+                x.plots.iter().map(|p| format!("[{}]({p})", p.rsplit('/').next().unwrap_or(p))).collect();
             let _ = writeln!(s, "- {} / {}: {}", x.sequence, system_label(x), links.join(", "));
         }
     }

@@ -1,6 +1,6 @@
 //! The sequences of the quick and full suites.
 
-use anyhow::{bail, Context, Result};
+use anyhow::{Context, Result, bail};
 use colslam_synth::SynthOptions;
 use std::path::{Path, PathBuf};
 
@@ -56,7 +56,14 @@ impl Sequence {
     fn tum_layout(data: &Path, name: &str) -> Self {
         let dir = data.join(name);
         let gt = dir.join("groundtruth.txt");
-        Sequence { name: name.to_string(), gt: Some(gt), input: dir, camera: CameraSpec::Auto, synth: None, user: false }
+        Sequence {
+            name: name.to_string(),
+            gt: Some(gt),
+            input: dir,
+            camera: CameraSpec::Auto,
+            synth: None,
+            user: false,
+        }
     }
 
     /// A user-given sequence: ground truth when `groundtruth.txt` lies in it.
@@ -82,7 +89,14 @@ impl Sequence {
         }
         let name = format!("{SYNTHETIC_PREFIX}{frames}");
         let dir = gen_dir.join(&name);
-        Sequence { name, gt: Some(dir.join("groundtruth.txt")), input: dir, camera: CameraSpec::Auto, synth: Some(o), user: false }
+        Sequence {
+            name,
+            gt: Some(dir.join("groundtruth.txt")),
+            input: dir,
+            camera: CameraSpec::Auto,
+            synth: Some(o),
+            user: false,
+        }
     }
 
     /// Whether the sequence is in TUM layout (rgb.txt and camera.yaml), as the
@@ -118,7 +132,12 @@ pub fn parse_size(s: &str) -> Result<(usize, usize)> {
 }
 
 /// The sequences of `suite` ("quick" or "full").
-pub fn suite_sequences(suite: &str, data: &Path, size: Option<(usize, usize)>, gen_dir: &Path) -> Result<Vec<Sequence>> {
+pub fn suite_sequences(
+    suite: &str,
+    data: &Path,
+    size: Option<(usize, usize)>,
+    gen_dir: &Path,
+) -> Result<Vec<Sequence>> {
     let (synth, strecha): (&[usize], &[&str]) = match suite {
         "quick" => (&QUICK_SYNTHETIC_FRAMES, &[QUICK_STRECHA]),
         "full" => (&FULL_SYNTHETIC_FRAMES, &STRECHA_SEQUENCES),
@@ -141,7 +160,12 @@ pub fn suite_sequences(suite: &str, data: &Path, size: Option<(usize, usize)>, g
 /// Restricts `all` to the names in `only` (empty: keep all). A name
 /// `synthetic-<N>` not in the suite adds that synthetic sequence; any other
 /// unknown name is an error.
-pub fn restrict(all: Vec<Sequence>, only: &[String], size: Option<(usize, usize)>, gen_dir: &Path) -> Result<Vec<Sequence>> {
+pub fn restrict(
+    all: Vec<Sequence>,
+    only: &[String],
+    size: Option<(usize, usize)>,
+    gen_dir: &Path,
+) -> Result<Vec<Sequence>> {
     if only.is_empty() {
         return Ok(all);
     }
@@ -157,7 +181,10 @@ pub fn restrict(all: Vec<Sequence>, only: &[String], size: Option<(usize, usize)
             out.push(Sequence::synthetic(frames, size, gen_dir));
         } else {
             let known: Vec<&str> = all.iter().map(|s| s.name.as_str()).collect();
-            bail!("--only {name:?}: no such sequence in this suite (known: {}, or synthetic-<frames>)", known.join(", "));
+            bail!(
+                "--only {name:?}: no such sequence in this suite (known: {}, or synthetic-<frames>)",
+                known.join(", ")
+            );
         }
     }
     Ok(out)

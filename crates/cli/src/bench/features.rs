@@ -52,6 +52,8 @@ const OPENCV_FAST_THRESHOLD_MATCHED: u8 = 7;
 const OPENCV_FAST_THRESHOLD_DEFAULT: u8 = 20;
 /// Largest gap (s) between an image stamp and its ground-truth pose.
 const MAX_STAMP_GAP: f64 = 0.02;
+/// XFeat keypoints per frame in the benchmark (as ORB's larger setting).
+const XFEAT_FEATURES: usize = 2000;
 
 /// Arguments of `bench features`.
 #[derive(Debug, clap::Args)]
@@ -306,6 +308,54 @@ fn score_pair(
         }
     }
     (good, m.len())
+}
+
+/// XFeat measured on the same frames: extraction ms per frame (2 threads),
+/// mutual-nearest-neighbour matching ms per pair, and the same
+/// ground-truth consistency figures as ORB. `Err` carries why it could not
+/// run (typically: the weights are not installed).
+fn time_xfeat(
+    frames: &[Frame],
+    cam: &Camera,
+    k: &Mat3,
+    fs: &[Mat3],
+    multi: &rayon::ThreadPool,
+) -> std::result::Result<Value, String> {
+    use colslam_features::{FeatureExtractor, Matcher};
+    let xfeat = colslam_xfeat::XFeat::new(colslam_xfeat::XFeatOptions {
+        top_k: XFEAT_FEATURES,
+        ..colslam_xfeat::XFeatOptions::default()
+    })
+    .map_err(|e| e.to_string())?;
+    let matcher =
+        colslam_xfeat::MnnCosineMatcher::new(colslam_xfeat::MnnCosineOptions::default()).map_err(|e| e.to_string())?;
+    let mut extract_ms = Vec::new();
+    let mut feats = Vec::new();
+    for f in frames {
+        let t = Instant::now();
+        let out = multi.install(|| xfeat.extract(&f.gray)).map_err(|e| e.to_string())?;
+        extract_ms.push(1e3 * t.elapsed().as_secs_f64());
+        feats.push(out);
+    }
+    let (mut match_ms, mut good, mut total) = (Vec::new(), 0usize, 0usize);
+    for (w, f) in feats.windows(2).zip(fs) {
+        let t = Instant::now();
+        let m = multi.install(|| matcher.match_features(&w[0], &w[1])).map_err(|e| e.to_string())?;
+        match_ms.push(1e3 * t.elapsed().as_secs_f64());
+        let pairs: Vec<(usize, usize)> = m.iter().map(|m| (m.query as usize, m.train as usize)).collect();
+        let (g, n) = score_pair(cam, k, f, &points(&w[0]), &points(&w[1]), &pairs, &mut OctaveTally::default());
+        good += g;
+        total += n;
+    }
+    let pairs = fs.len().max(1) as f64;
+    Ok(json!({
+        "top_k": XFEAT_FEATURES,
+        "extract_ms": median(&extract_ms),
+        "match_ms": median(&match_ms),
+        "keypoints_mean": feats.iter().map(|f| f.len() as f64).sum::<f64>() / feats.len().max(1) as f64,
+        "gt_consistent_matches": good as f64 / pairs,
+        "gt_consistent_ratio": if total > 0 { good as f64 / total as f64 } else { f64::NAN },
+    }))
 }
 
 /// Per-octave shares as JSON (`null` for empty octaves).
@@ -599,6 +649,11 @@ pub fn run(args: &Args, quiet: bool) -> Result<()> {
     let (cv_good, cv_total) = cv_quality(OPENCV_FAST_THRESHOLD_MATCHED, &mut cv_octaves)?;
     let (cv_def_good, cv_def_total) = cv_quality(OPENCV_FAST_THRESHOLD_DEFAULT, &mut OctaveTally::default())?;
 
+    let xfeat = time_xfeat(&frames, &cam, &k, &fs, &multi);
+    let (xfeat_ms, xfeat_detail) = match &xfeat {
+        Ok(v) => (v["extract_ms"].clone(), v.clone()),
+        Err(e) => (Value::Null, json!({ "not_run": e })),
+    };
     let ratio = |g: usize, t: usize| if t > 0 { g as f64 / t as f64 } else { f64::NAN };
     let o = |key: &str| ours.orb_ms.get(key).map(|v| median(v)).unwrap_or(f64::NAN);
     let result = json!({
@@ -637,7 +692,8 @@ pub fn run(args: &Args, quiet: bool) -> Result<()> {
         "opencv_matches_per_pair": cv_total as f64 / pairs,
         "default_matcher_gt_consistent_matches": good_def as f64 / pairs,
         "default_matcher_gt_consistent_ratio": ratio(good_def, total_def),
-        "xfeat_ms": Value::Null,
+        "xfeat_ms": xfeat_ms,
+        "xfeat": xfeat_detail,
         "opencv_version": cv["opencv_version"],
         "machine": machine(),
     });
@@ -676,6 +732,17 @@ pub fn run(args: &Args, quiet: bool) -> Result<()> {
         cv_def_good as f64 / pairs,
         ratio(cv_def_good, cv_def_total)
     );
+    match &xfeat {
+        Ok(v) => println!(
+            "XFeat ({} kp, 2 threads): {:.1} ms/frame, MNN matching {:.1} ms/pair, {:.1} GT-consistent matches per pair (share {:.3})",
+            XFEAT_FEATURES,
+            v["extract_ms"].as_f64().unwrap_or(f64::NAN),
+            v["match_ms"].as_f64().unwrap_or(f64::NAN),
+            v["gt_consistent_matches"].as_f64().unwrap_or(f64::NAN),
+            v["gt_consistent_ratio"].as_f64().unwrap_or(f64::NAN)
+        ),
+        Err(e) => println!("XFeat not run: {e}"),
+    }
     println!(
         "(ours with the default matcher, ratio 0.9 and <= 64 bits: {:.1} consistent matches per pair, share {:.3})",
         good_def as f64 / pairs,

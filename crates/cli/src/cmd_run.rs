@@ -61,6 +61,13 @@ pub struct PipelineArgs {
     /// Below this many matches to the last keyframe a keyframe is forced.
     #[arg(long, default_value_t = SlamOptions::default().force_keyframe_matches)]
     pub force_keyframe_matches: usize,
+    /// At the end, add every localised frame to the model and bundle adjust
+    /// all of them together.
+    #[arg(long)]
+    pub refine_all_frames: bool,
+    /// Weight bundle-adjustment observations by the keypoint's pyramid level.
+    #[arg(long)]
+    pub weight_by_level: bool,
     /// Accept keyframe candidates even when their motion is a pure rotation.
     #[arg(long)]
     pub allow_pure_rotation: bool,
@@ -93,6 +100,8 @@ impl PipelineArgs {
             match_keyframes: self.match_keyframes,
             force_keyframe_matches: self.force_keyframe_matches,
             reject_pure_rotation: !self.allow_pure_rotation,
+            refine_all_frames: self.refine_all_frames,
+            weight_by_level: self.weight_by_level,
             seed: self.seed,
             ..SlamOptions::default()
         }

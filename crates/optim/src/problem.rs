@@ -93,6 +93,10 @@ pub struct Observation {
     /// Observed pixel (COLMAP convention: the centre of the top-left pixel is
     /// (0.5, 0.5)).
     pub pixel: Vec2,
+    /// Inverse standard deviation of the measurement in pixels (1 for a
+    /// 1-pixel measurement); the residual and its Jacobians are multiplied by
+    /// it, as ORB-SLAM weights keypoints by their pyramid level.
+    pub weight: f64,
 }
 
 /// A bundle-adjustment problem.
@@ -127,9 +131,15 @@ impl Problem {
         self.points.len() - 1
     }
 
-    /// Adds an observation.
+    /// Adds an observation of unit weight.
     pub fn add_observation(&mut self, pose: usize, camera: usize, point: usize, pixel: Vec2) {
-        self.observations.push(Observation { pose, camera, point, pixel });
+        self.add_weighted_observation(pose, camera, point, pixel, 1.0);
+    }
+
+    /// Adds an observation whose residual is scaled by `weight` (the inverse
+    /// standard deviation of the measurement in pixels).
+    pub fn add_weighted_observation(&mut self, pose: usize, camera: usize, point: usize, pixel: Vec2, weight: f64) {
+        self.observations.push(Observation { pose, camera, point, pixel, weight });
     }
 
     /// Checks indices, parameter counts and finiteness.
@@ -179,6 +189,9 @@ impl Problem {
             check("point", o.point, self.points.len())?;
             if !o.pixel.iter().all(|v| v.is_finite()) {
                 return Err(BaError::NonFinite { what: "observation pixel", index: i });
+            }
+            if !(o.weight.is_finite() && o.weight > 0.0) {
+                return Err(BaError::NonFinite { what: "observation weight", index: i });
             }
         }
         Ok(())

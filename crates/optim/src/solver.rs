@@ -21,7 +21,7 @@ use crate::residual::{POSE_DIM, pose_plus, reprojection_jacobians, reprojection_
 use crate::small::{add_j_x, add_jt_j, add_jt_j_fixed, add_jt_r, spd_inverse3};
 use crate::{BaError, BaOptions, BaReport, BaTimings, LinearSolverType, LossFunction, Termination};
 use colslam_camera::Camera;
-use colslam_geometry::{Rigid3, Vec2, Vec3};
+use colslam_geometry::{Rigid3, Vec3};
 use rayon::prelude::*;
 use std::time::{Duration, Instant};
 
@@ -289,13 +289,14 @@ fn evaluate_cost(problem: &Problem, layout: &Layout, state: &State, loss: &LossF
         .map(|chunk| {
             let mut sum = 0.0;
             for o in chunk {
-                let pixel = problem.observations[o.obs].pixel;
+                let ob = &problem.observations[o.obs];
                 let r = reprojection_residual(
                     &state.cameras[o.camera],
                     &state.poses[o.pose],
                     &state.points[o.point],
-                    &pixel,
-                );
+                    &ob.pixel,
+                )
+                .map(|r| r * ob.weight);
                 let Some(r) = r else {
                     if zero_unprojectable {
                         continue;
@@ -335,13 +336,23 @@ fn linearize(
         .map(|((((rs, jps), jpts), jcs), obs)| {
             let mut sum = 0.0;
             for (k, o) in obs.iter().enumerate() {
-                let pixel: Vec2 = problem.observations[o.obs].pixel;
+                let ob = &problem.observations[o.obs];
                 let rj = reprojection_jacobians(
                     &state.cameras[o.camera],
                     &state.poses[o.pose],
                     &state.points[o.point],
-                    &pixel,
-                );
+                    &ob.pixel,
+                )
+                .map(|mut rj| {
+                    // Whitening by the measurement's inverse standard deviation.
+                    if ob.weight != 1.0 {
+                        rj.residual *= ob.weight;
+                        rj.d_pose *= ob.weight;
+                        rj.d_point *= ob.weight;
+                        rj.d_params *= ob.weight;
+                    }
+                    rj
+                });
                 let Some(rj) = rj else {
                     if !zero_unprojectable {
                         return None;

@@ -27,23 +27,34 @@ pub struct BundleConfig {
     pub refine_intrinsics: bool,
 }
 
+/// Per-keypoint measurement standard deviations in pixels, by image (a
+/// keypoint detected at a coarser pyramid level is less precise).
+pub type KeypointSigmas = std::sync::Arc<std::collections::HashMap<ImageId, Vec<f32>>>;
+
 /// Options of [`adjust_bundle`] beyond the configuration.
 #[derive(Debug, Clone, Default)]
 pub struct BundleOptions {
     /// Solver options (loss, tolerances, iterations, which intrinsics).
     pub ba: BaOptions,
+    /// Standard deviation of each keypoint's position (px); observations are
+    /// weighted by its inverse (ORB-SLAM's per-level information). Missing
+    /// entries weigh 1.
+    pub keypoint_sigmas: Option<KeypointSigmas>,
 }
 
 impl BundleOptions {
     /// COLMAP's local-BA settings: soft-L1 loss of scale 1 px, at most 25
     /// iterations.
     pub fn local() -> Self {
-        Self { ba: BaOptions { loss: LossFunction::SoftL1(1.0), max_iterations: 25, ..BaOptions::default() } }
+        Self {
+            ba: BaOptions { loss: LossFunction::SoftL1(1.0), max_iterations: 25, ..BaOptions::default() },
+            keypoint_sigmas: None,
+        }
     }
 
     /// COLMAP's global-BA settings: trivial loss, at most 50 iterations.
     pub fn global() -> Self {
-        Self { ba: BaOptions { max_iterations: 50, ..BaOptions::default() } }
+        Self { ba: BaOptions { max_iterations: 50, ..BaOptions::default() }, keypoint_sigmas: None }
     }
 }
 
@@ -129,7 +140,15 @@ pub fn adjust_bundle(
             let (Some(&pose), Some(img)) = (pose_index.get(&el.image_id), rec.image(el.image_id)) else { continue };
             let Some(&cam) = cam_index.get(&img.camera_id) else { continue };
             let Some(kp) = img.points2d.get(el.point2d_idx as usize) else { continue };
-            problem.add_observation(pose, cam, pi, kp.xy);
+            let sigma = opts
+                .keypoint_sigmas
+                .as_ref()
+                .and_then(|m| m.get(&el.image_id))
+                .and_then(|v| v.get(el.point2d_idx as usize))
+                .copied()
+                .filter(|s| s.is_finite() && *s > 0.0)
+                .unwrap_or(1.0);
+            problem.add_weighted_observation(pose, cam, pi, kp.xy, 1.0 / f64::from(sigma));
         }
     }
     // Gauge: with no constant pose, fix one pose and one translation

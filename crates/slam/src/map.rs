@@ -12,7 +12,7 @@ use colslam_estimators::{
 use colslam_features::Match;
 use colslam_geometry::{Rigid3, Vec2, Vec3};
 use colslam_scene::{CameraId, Image, ImageId, Point3DId, Reconstruction, TrackElement};
-use colslam_sfm::bundle::{BundleOptions, adjust_global, adjust_local};
+use colslam_sfm::bundle::{BundleOptions, KeypointSigmas, adjust_global, adjust_local};
 use colslam_sfm::triangulator::{complete_and_merge_all, complete_and_merge_image, retriangulate, triangulate_image};
 use colslam_sfm::{CorrespondenceGraph, SfmError, TriangulatorOptions};
 use rayon::prelude::*;
@@ -111,6 +111,26 @@ pub struct MapState {
     last_global_points: usize,
     /// Point ids sent to event consumers (only maintained when asked).
     pub sent_points: HashSet<Point3DId>,
+    /// Keypoint standard deviations (px) of the keyframes, for weighting
+    /// bundle adjustment by pyramid level.
+    pub sigmas: KeypointSigmas,
+}
+
+/// A localised frame's PnP inliers: (normalised keypoint, 3D point).
+pub type FrameInliers = Vec<(Vec2, Point3DId)>;
+
+/// What [`MapState::localize_all`] returns: poses of keyframes and
+/// localised frames, the frames that failed (index, timestamp, name), and
+/// each localised frame's inliers by frame index.
+pub type Localization = (Vec<FramePose>, Vec<(usize, f64, String)>, HashMap<usize, FrameInliers>);
+
+/// Scale between ORB pyramid levels: a keypoint found at octave `o` is
+/// located to about `ORB_LEVEL_SCALE^o` pixels (ORB-SLAM's level sigma).
+pub const ORB_LEVEL_SCALE: f32 = 1.2;
+
+/// The standard deviation of each keypoint of a frame (by pyramid level).
+pub fn keypoint_sigmas(data: &FrameData) -> Vec<f32> {
+    data.features.keypoints.iter().map(|k| ORB_LEVEL_SCALE.powi(i32::from(k.octave))).collect()
 }
 
 /// Why a keyframe candidate was not registered.
@@ -299,7 +319,13 @@ impl MapState {
             last_global_images: 0,
             last_global_points: 0,
             sent_points: HashSet::new(),
+            sigmas: KeypointSigmas::default(),
         };
+        if opts.weight_by_level {
+            let m = std::sync::Arc::make_mut(&mut map.sigmas);
+            m.insert(ids[0], keypoint_sigmas(a));
+            m.insert(ids[1], keypoint_sigmas(b));
+        }
         map.global_ba(opts, timings)?;
         Ok(map)
     }
@@ -444,6 +470,9 @@ impl MapState {
         self.rec.add_image(img)?;
         self.rec.register_image(image_id)?;
         self.graph.add_image(image_id, data.len())?;
+        if opts.weight_by_level {
+            std::sync::Arc::make_mut(&mut self.sigmas).insert(image_id, keypoint_sigmas(data));
+        }
         // Geometric verification of the matches with the known poses.
         let max_sampson = (VERIFY_MAX_ERROR_PX / focal).powi(2);
         for (k, matches) in &kf_matches {
@@ -486,7 +515,8 @@ impl MapState {
             Ok(())
         })?;
         let ba = timings.time(Stage::LocalBa, || {
-            adjust_local(&mut self.rec, image_id, opts.local_ba_images, opts.refine_intrinsics, &BundleOptions::local())
+            let ba_opts = BundleOptions { keypoint_sigmas: Some(self.sigmas.clone()), ..BundleOptions::local() };
+            adjust_local(&mut self.rec, image_id, opts.local_ba_images, opts.refine_intrinsics, &ba_opts)
         })?;
         tracing::debug!(
             "frame {}: local BA cost {:.4e} -> {:.4e} in {} iterations ({:?}), {} variable poses",
@@ -558,12 +588,7 @@ impl MapState {
 
     /// Poses of every keyframe and every localised non-keyframe, in frame
     /// order, and the records that could not be localised.
-    pub fn localize_all(
-        &self,
-        camera_focal: f64,
-        opts: &SlamOptions,
-        timings: &mut StageTimings,
-    ) -> (Vec<FramePose>, Vec<(usize, f64, String)>) {
+    pub fn localize_all(&self, camera_focal: f64, opts: &SlamOptions, timings: &mut StageTimings) -> Localization {
         let mut poses: Vec<FramePose> = self
             .keyframes
             .iter()
@@ -580,7 +605,7 @@ impl MapState {
             .collect();
         let keyframe_frames: HashSet<usize> = poses.iter().map(|p| p.index).collect();
         let started = std::time::Instant::now();
-        let results: Vec<(usize, Option<FramePose>)> = self
+        let results: Vec<(usize, Option<(FramePose, FrameInliers)>)> = self
             .records
             .par_iter()
             .enumerate()
@@ -589,9 +614,13 @@ impl MapState {
             .collect();
         timings.add(Stage::Localization, started.elapsed());
         let mut failed = Vec::new();
+        let mut inliers = HashMap::new();
         for (i, res) in results {
             match res {
-                Some(p) => poses.push(p),
+                Some((p, inl)) => {
+                    inliers.insert(p.index, inl);
+                    poses.push(p);
+                }
                 None => {
                     let r = &self.records[i];
                     failed.push((r.index, r.timestamp, r.name.clone()));
@@ -600,13 +629,19 @@ impl MapState {
         }
         poses.sort_by_key(|p| p.index);
         failed.sort_by_key(|f| f.0);
-        (poses, failed)
+        (poses, failed, inliers)
     }
 
-    fn localize(&self, record: &FrameRecord, focal: f64, opts: &SlamOptions) -> Option<FramePose> {
+    fn localize(
+        &self,
+        record: &FrameRecord,
+        focal: f64,
+        opts: &SlamOptions,
+    ) -> Option<(FramePose, Vec<(Vec2, Point3DId)>)> {
         let mut used_kp = HashSet::new();
         let mut used_pt = HashSet::new();
         let (mut p2, mut p3): (Vec<Vec2>, Vec<Vec3>) = (Vec::new(), Vec::new());
+        let mut pids = Vec::new();
         for o in &record.obs {
             let Some(img) = self.rec.image(o.keyframe) else { continue };
             if !img.registered {
@@ -621,6 +656,7 @@ impl MapState {
             used_pt.insert(pid);
             p2.push(o.normalized);
             p3.push(p.xyz);
+            pids.push(pid);
         }
         if p2.len() < opts.abs_pose_min_inliers {
             return None;
@@ -634,12 +670,65 @@ impl MapState {
             ..AbsolutePoseOptions::default()
         };
         let pose = estimate_absolute_pose(&p2, &p3, &pose_opts).ok()?;
-        Some(FramePose {
+        let inliers =
+            p2.iter().zip(&pids).zip(&pose.inlier_mask).filter(|(_, m)| **m).map(|((n, pid), _)| (*n, *pid)).collect();
+        let fp = FramePose {
             index: record.index,
             timestamp: record.timestamp,
             name: record.name.clone(),
             cam_from_world: pose.cam_from_world,
             keyframe: false,
-        })
+        };
+        Some((fp, inliers))
+    }
+
+    /// Adds every localised non-keyframe to the model with its PnP inlier
+    /// observations and bundle adjusts everything together (as COLMAP
+    /// registers every image); the frames' poses are then read back from the
+    /// model. Frames are added under their own names, so the written model
+    /// holds every localised frame.
+    pub fn refine_with_all_frames(
+        &mut self,
+        poses: &mut [FramePose],
+        inliers: &HashMap<usize, FrameInliers>,
+        opts: &SlamOptions,
+        timings: &mut StageTimings,
+    ) -> Result<(), SfmError> {
+        let Some(camera) = self.rec.camera(self.camera_id).map(|c| c.camera.clone()) else { return Ok(()) };
+        let mut added: Vec<(usize, ImageId)> = Vec::new();
+        for p in poses.iter().filter(|p| !p.keyframe) {
+            let Some(obs) = inliers.get(&p.index) else { continue };
+            let live: Vec<&(Vec2, Point3DId)> =
+                obs.iter().filter(|(_, pid)| self.rec.point3d(*pid).is_some()).collect();
+            if live.len() < opts.abs_pose_min_inliers {
+                continue;
+            }
+            let id = self.rec.next_image_id();
+            let pixels: Vec<Vec2> = live.iter().map(|(n, _)| camera.img_from_normalized(n)).collect();
+            let mut img = Image::new(id, p.name.clone(), self.camera_id, pixels);
+            img.cam_from_world = p.cam_from_world;
+            self.rec.add_image(img)?;
+            self.rec.register_image(id)?;
+            for (k, (_, pid)) in live.iter().enumerate() {
+                let taken = self.rec.point3d(*pid).is_none_or(|pt| pt.track.iter().any(|e| e.image_id == id));
+                if !taken {
+                    self.rec.add_observation(*pid, TrackElement::new(id, k as u32))?;
+                }
+            }
+            added.push((p.index, id));
+        }
+        if added.is_empty() {
+            return Ok(());
+        }
+        self.global_ba(opts, timings)?;
+        let by_index: HashMap<usize, ImageId> = added.into_iter().collect();
+        let kf_ids: HashMap<usize, ImageId> = self.keyframes.iter().map(|k| (k.data.index, k.image_id)).collect();
+        for p in poses.iter_mut() {
+            let id = if p.keyframe { kf_ids.get(&p.index) } else { by_index.get(&p.index) };
+            if let Some(img) = id.and_then(|id| self.rec.image(*id)).filter(|i| i.registered) {
+                p.cam_from_world = img.cam_from_world;
+            }
+        }
+        Ok(())
     }
 }

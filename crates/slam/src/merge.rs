@@ -220,6 +220,11 @@ fn join(
             target.keyframes.push(Keyframe { image_id: id, data: kf.data.clone() });
         }
     }
+    for (old_id, sig) in source.sigmas.iter() {
+        if let Some(&id) = image_map.get(old_id) {
+            std::sync::Arc::make_mut(&mut target.sigmas).insert(id, sig.clone());
+        }
+    }
     target.keyframes.sort_by_key(|k| k.data.index);
     for r in &source.records {
         let mut r = r.clone();

@@ -611,8 +611,11 @@ impl Slam {
                     }
                 }
             }
+            let (mut poses, _failed, inliers) = map.localize_all(focal, &self.opts, &mut self.timings);
+            if self.opts.refine_all_frames {
+                map.refine_with_all_frames(&mut poses, &inliers, &self.opts, &mut self.timings)?;
+            }
             map.color_points();
-            let (poses, _failed) = map.localize_all(focal, &self.opts, &mut self.timings);
             maps.push(MapResult { map, poses });
         }
         // Largest first; ties by earlier map.

@@ -151,3 +151,20 @@ fn wrong_frame_size_is_an_error_not_a_panic() {
             .is_err()
     );
 }
+
+#[test]
+fn refine_all_frames_puts_every_localised_frame_in_the_model() {
+    let opts = small_synth(40, 8);
+    let seq = SyntheticSequence::new(&opts).expect("sequence");
+    let frames = frames_of(&seq, opts.frames, opts.fps);
+    let slam_opts = SlamOptions { refine_all_frames: true, weight_by_level: true, ..SlamOptions::default() };
+    let r = run(&frames, seq.camera(), slam_opts, EventSink::none());
+    let m = &r.maps[0];
+    assert_eq!(m.map.rec.num_registered_images(), m.poses.len(), "every localised frame is an image of the model");
+    m.map.rec.check_consistency().expect("consistent model");
+    let ate = evaluate(&gt_trajectory(&seq, opts.frames, opts.fps), &est_trajectory(&r), &EvalOptions::default())
+        .expect("evaluate");
+    let size = seq.scene().room().size();
+    let diagonal = (size[0].powi(2) + size[1].powi(2) + size[2].powi(2)).sqrt();
+    assert!(ate.ate_rmse < 1e-3 * diagonal, "ATE {} m", ate.ate_rmse);
+}

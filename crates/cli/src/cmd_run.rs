@@ -22,7 +22,7 @@ pub struct PipelineArgs {
     /// Matcher.
     #[arg(long, default_value = "nn")]
     pub matcher: String,
-    /// Keypoints per frame.
+    /// Keypoints per frame; 0 scales them with the image area (2000 at 640x480, at most 8000).
     #[arg(long, default_value_t = SlamOptions::default().num_features)]
     pub num_features: usize,
     /// Use every s-th frame.
@@ -58,6 +58,9 @@ pub struct PipelineArgs {
     /// Previous keyframes a new keyframe is matched against.
     #[arg(long, default_value_t = SlamOptions::default().match_keyframes)]
     pub match_keyframes: usize,
+    /// Older keyframes looking the same way a new keyframe is matched against too (0: off).
+    #[arg(long, default_value_t = SlamOptions::default().match_revisited)]
+    pub match_revisited: usize,
     /// Below this many matches to the last keyframe a keyframe is forced.
     #[arg(long, default_value_t = SlamOptions::default().force_keyframe_matches)]
     pub force_keyframe_matches: usize,
@@ -98,6 +101,7 @@ impl PipelineArgs {
             max_ratio: self.max_ratio,
             init_min_tri_angle_deg: self.init_min_tri_angle,
             match_keyframes: self.match_keyframes,
+            match_revisited: self.match_revisited,
             force_keyframe_matches: self.force_keyframe_matches,
             reject_pure_rotation: !self.allow_pure_rotation,
             refine_all_frames: self.refine_all_frames,

@@ -33,7 +33,7 @@ pub mod triangulation;
 pub mod two_view_geometry;
 
 // Generic robust estimation.
-pub use ransac::{Estimator, RansacOptions, RansacReport, Support, SupportMeasure, ransac};
+pub use ransac::{Estimator, RansacOptions, RansacReport, Support, SupportAccumulator, SupportMeasure, ransac};
 // Minimal and non-minimal solvers (one per file).
 pub use epnp::estimate_epnp;
 pub use essential_5pt::{

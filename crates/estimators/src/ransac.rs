@@ -44,6 +44,71 @@ pub trait Estimator {
     /// Writes the **squared** residual of every data point into `out`
     /// (`out.len() == num_data()`). Non-finite values count as outliers.
     fn squared_residuals(&self, model: &Self::Model, out: &mut [f64]);
+
+    /// Support of `model` at the squared threshold `max_sq`, or `None` once
+    /// it is certain that the model cannot be strictly better than `bound`
+    /// under `measure` (early exit: most models of a RANSAC run are wrong).
+    /// `buf` has `num_data()` entries of scratch space. The default scores
+    /// every residual from [`Estimator::squared_residuals`]; overriding it
+    /// must give the same support for models that are not rejected.
+    fn score(
+        &self,
+        model: &Self::Model,
+        max_sq: f64,
+        measure: SupportMeasure,
+        bound: Option<&Support>,
+        buf: &mut [f64],
+    ) -> Option<Support> {
+        let _ = (measure, bound);
+        self.squared_residuals(model, buf);
+        let mut s = SupportAccumulator::default();
+        s.add_all(buf, max_sq);
+        Some(s.finish(max_sq))
+    }
+}
+
+/// Running support of a model, for [`Estimator::score`] implementations.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct SupportAccumulator {
+    num_inliers: usize,
+    num_outliers: usize,
+    residual_sum: f64,
+}
+
+impl SupportAccumulator {
+    /// Adds squared residuals (non-finite ones count as outliers).
+    #[inline]
+    pub fn add_all(&mut self, squared_residuals: &[f64], max_sq: f64) {
+        for &r in squared_residuals {
+            // `r <= max_sq` is false for NaN.
+            if r <= max_sq {
+                self.num_inliers += 1;
+                self.residual_sum += r;
+            } else {
+                self.num_outliers += 1;
+            }
+        }
+    }
+
+    /// True when, with `remaining` residuals still to add, the final support
+    /// cannot be strictly better than `bound` under `measure`.
+    #[inline]
+    pub fn cannot_beat(&self, bound: &Support, measure: SupportMeasure, max_sq: f64, remaining: usize) -> bool {
+        match measure {
+            // The MSAC cost only grows as residuals are added.
+            SupportMeasure::Msac => self.residual_sum + self.num_outliers as f64 * max_sq >= bound.msac_cost,
+            SupportMeasure::InlierCount => self.num_inliers + remaining < bound.num_inliers,
+        }
+    }
+
+    /// The support of the residuals added so far.
+    pub fn finish(&self, max_sq: f64) -> Support {
+        Support {
+            num_inliers: self.num_inliers,
+            residual_sum: self.residual_sum,
+            msac_cost: self.residual_sum + self.num_outliers as f64 * max_sq,
+        }
+    }
 }
 
 /// How the support of a model is scored.
@@ -188,20 +253,6 @@ pub fn required_trials(inlier_ratio: f64, sample_size: usize, confidence: f64, m
     if n.is_finite() && n >= 0.0 && n < usize::MAX as f64 { n as usize } else { usize::MAX }
 }
 
-fn evaluate<E: Estimator>(est: &E, model: &E::Model, max_sq: f64, buf: &mut [f64]) -> Support {
-    est.squared_residuals(model, buf);
-    let mut s = Support::default();
-    for &r in buf.iter() {
-        // `r <= max_sq` is false for NaN, so non-finite residuals are outliers.
-        if r <= max_sq {
-            s.num_inliers += 1;
-            s.residual_sum += r;
-        }
-    }
-    s.msac_cost = s.residual_sum + (buf.len() - s.num_inliers) as f64 * max_sq;
-    s
-}
-
 fn inliers_of(buf: &[f64], max_sq: f64, out: &mut Vec<usize>) {
     out.clear();
     out.extend(buf.iter().enumerate().filter(|(_, r)| **r <= max_sq).map(|(i, _)| i));
@@ -257,8 +308,11 @@ pub fn ransac<E: Estimator>(est: &E, opts: &RansacOptions) -> Result<RansacRepor
         models.clear();
         est.estimate_minimal(&sample, &mut models);
         for model in models.drain(..) {
-            let support = evaluate(est, &model, max_sq, &mut buf);
-            let improves = best.as_ref().is_none_or(|b| support.is_better_than(&b.support, opts.support_measure));
+            let bound = best.as_ref().map(|b| &b.support);
+            let Some(support) = est.score(&model, max_sq, opts.support_measure, bound, &mut buf) else {
+                continue;
+            };
+            let improves = bound.is_none_or(|b| support.is_better_than(b, opts.support_measure));
             if !improves {
                 continue;
             }
@@ -275,8 +329,8 @@ pub fn ransac<E: Estimator>(est: &E, opts: &RansacOptions) -> Result<RansacRepor
                     est.estimate_nonminimal(&inliers, &cur.model, &mut lo_models);
                     let mut improved = false;
                     for m in lo_models.drain(..) {
-                        let sup = evaluate(est, &m, max_sq, &mut buf);
-                        if sup.is_better_than(&cur.support, opts.support_measure) {
+                        let sup = est.score(&m, max_sq, opts.support_measure, Some(&cur.support), &mut buf);
+                        if let Some(sup) = sup.filter(|s| s.is_better_than(&cur.support, opts.support_measure)) {
                             cur = Best { model: m, support: sup };
                             improved = true;
                         }
@@ -305,8 +359,8 @@ pub fn ransac<E: Estimator>(est: &E, opts: &RansacOptions) -> Result<RansacRepor
             lo_models.clear();
             est.estimate_nonminimal(&inliers, &best.model, &mut lo_models);
             for m in lo_models.drain(..) {
-                let sup = evaluate(est, &m, max_sq, &mut buf);
-                if sup.is_better_than(&best.support, opts.support_measure) {
+                let sup = est.score(&m, max_sq, opts.support_measure, Some(&best.support), &mut buf);
+                if let Some(sup) = sup.filter(|s| s.is_better_than(&best.support, opts.support_measure)) {
                     best = Best { model: m, support: sup };
                     num_lo_improvements += 1;
                 }

@@ -14,7 +14,7 @@ use crate::error::{EstimatorError, check_pairs};
 use crate::essential_5pt::{self, essential_from_pose, pose_from_essential, sampson_error_sq};
 use crate::fundamental;
 use crate::homography::{self, transfer_error_sq};
-use crate::ransac::{Estimator, RansacOptions, RansacReport, ransac};
+use crate::ransac::{Estimator, RansacOptions, RansacReport, Support, SupportMeasure, ransac};
 use crate::{Mat3, Vec2, Vec3};
 use colslam_geometry::{Quat, Rigid3};
 use nalgebra::{DMatrix, DVector, SMatrix, SVector};
@@ -49,9 +49,17 @@ impl Estimator for EssentialEstimator<'_> {
         essential_5pt::solve(&gather(self.x1, inl), &gather(self.x2, inl), models);
     }
     fn squared_residuals(&self, e: &Mat3, out: &mut [f64]) {
-        for ((o, p), q) in out.iter_mut().zip(self.x1).zip(self.x2) {
-            *o = sampson_error_sq(e, p, q);
-        }
+        essential_5pt::sampson_sq_into(e, self.x1, self.x2, out);
+    }
+    fn score(
+        &self,
+        e: &Mat3,
+        max_sq: f64,
+        measure: SupportMeasure,
+        bound: Option<&Support>,
+        _buf: &mut [f64],
+    ) -> Option<Support> {
+        essential_5pt::sampson_score(e, self.x1, self.x2, max_sq, measure, bound)
     }
 }
 
@@ -83,9 +91,17 @@ impl Estimator for FundamentalEstimator<'_> {
         }
     }
     fn squared_residuals(&self, f: &Mat3, out: &mut [f64]) {
-        for ((o, p), q) in out.iter_mut().zip(self.x1).zip(self.x2) {
-            *o = sampson_error_sq(f, p, q);
-        }
+        essential_5pt::sampson_sq_into(f, self.x1, self.x2, out);
+    }
+    fn score(
+        &self,
+        f: &Mat3,
+        max_sq: f64,
+        measure: SupportMeasure,
+        bound: Option<&Support>,
+        _buf: &mut [f64],
+    ) -> Option<Support> {
+        essential_5pt::sampson_score(f, self.x1, self.x2, max_sq, measure, bound)
     }
 }
 
@@ -154,8 +170,13 @@ pub fn estimate_homography(
 /// Options of [`refine_relative_pose`].
 #[derive(Debug, Clone, PartialEq)]
 pub struct RelativePoseRefineOptions {
-    /// Robust loss on the Sampson error (normalised units). Default Cauchy
-    /// with scale 2e-3 (about 1 px at 500 px focal length).
+    /// Robust loss on the Sampson error (normalised units); in
+    /// [`estimate_relative_pose`] its scale is replaced by the noise-adaptive
+    /// one unless [`RelativePoseOptions::adaptive_refine`] is off. Default
+    /// Cauchy with scale 4e-3 (about 2 px at 500 px focal length: twice the 1 px
+    /// noise the estimators are tuned for; a 1 px scale down-weights too many
+    /// inliers: mean rotation error 0.0392 vs 0.0365 deg over the 100 scenes
+    /// of tests/robustness.rs).
     pub loss: RobustLoss,
     /// Maximum LM iterations. Default 50.
     pub max_iterations: usize,
@@ -165,7 +186,7 @@ pub struct RelativePoseRefineOptions {
 
 impl Default for RelativePoseRefineOptions {
     fn default() -> Self {
-        Self { loss: RobustLoss::Cauchy(2e-3), max_iterations: 50, function_tolerance: 1e-10 }
+        Self { loss: RobustLoss::Cauchy(4e-3), max_iterations: 50, function_tolerance: 1e-10 }
     }
 }
 
@@ -281,6 +302,20 @@ pub struct RelativePoseOptions {
     pub refine: bool,
     /// Refinement options.
     pub refine_options: RelativePoseRefineOptions,
+    /// Rounds of refinement and inlier re-selection (at least 1 when
+    /// `refine`); stops early once the inlier set is stable. Default 3.
+    pub refine_rounds: usize,
+    /// The refinement re-selects its points at this multiple of
+    /// `ransac.max_error` (the robust loss tempers the wider set); the
+    /// reported inliers keep `ransac.max_error`. At least 1. Default 1.5.
+    pub refine_threshold_factor: f64,
+    /// Adapt the refinement to the noise: estimate its scale `sigma` from
+    /// the RANSAC inliers' Sampson errors (median absolute value x 1.4826),
+    /// set the robust loss scale to `2 sigma` and re-select the refinement's
+    /// points at `3 sigma`, clamped to `[1, refine_threshold_factor] x
+    /// ransac.max_error`. Off: the loss of `refine_options` and
+    /// `refine_threshold_factor x max_error` as given. Default true.
+    pub adaptive_refine: bool,
 }
 
 impl Default for RelativePoseOptions {
@@ -289,6 +324,9 @@ impl Default for RelativePoseOptions {
             ransac: RansacOptions { max_error: 4e-3, ..RansacOptions::default() },
             refine: true,
             refine_options: RelativePoseRefineOptions::default(),
+            refine_rounds: 3,
+            refine_threshold_factor: 1.5,
+            adaptive_refine: true,
         }
     }
 }
@@ -297,6 +335,12 @@ impl RelativePoseOptions {
     /// Checks the ranges.
     pub fn validate(&self) -> Result<(), EstimatorError> {
         self.ransac.validate()?;
+        if !(self.refine_threshold_factor.is_finite() && self.refine_threshold_factor >= 1.0) {
+            return Err(EstimatorError::InvalidOptions(format!(
+                "relative pose refine_threshold_factor must be finite and >= 1, got {}",
+                self.refine_threshold_factor
+            )));
+        }
         if let RobustLoss::Huber(k) | RobustLoss::Cauchy(k) = self.refine_options.loss
             && !(k.is_finite() && k > 0.0)
         {
@@ -339,22 +383,74 @@ pub fn estimate_relative_pose(
     let (ix1, ix2) = (gather(x1, &idx), gather(x2, &idx));
     let rec = pose_from_essential(&rep.model, &ix1, &ix2)?;
     let mut pose = rec.cam2_from_cam1;
+    let max_sq = opts.ransac.max_error * opts.ransac.max_error;
+    // Inliers of a pose: Sampson error within the threshold and in front of
+    // both cameras. Outliers that slip under the Sampson threshold sit
+    // mostly near the epipole, where they have a large leverage and usually
+    // triangulate behind a camera or at infinity.
+    let masks_of = |pose: &Rigid3, max_sq: f64| {
+        let essential = essential_from_pose(pose);
+        let mut sq = vec![0.0; x1.len()];
+        essential_5pt::sampson_sq_into(&essential, x1, x2, &mut sq);
+        let inlier_mask: Vec<bool> = sq.iter().map(|r| *r <= max_sq).collect();
+        let (valid, _, _) = essential_5pt::cheirality(&pose.rotation_matrix(), &pose.translation, x1, x2);
+        let cheiral_mask: Vec<bool> = inlier_mask.iter().zip(&valid).map(|(a, b)| *a && *b).collect();
+        (essential, inlier_mask, cheiral_mask)
+    };
     if opts.refine {
-        // Refine on the inliers that also pass the cheirality test: outliers
-        // that slip under the Sampson threshold sit mostly near the epipole,
-        // where they have a large leverage and usually triangulate behind a
-        // camera or at infinity.
-        let (cx1, cx2) = (masked(&ix1, &rec.valid), masked(&ix2, &rec.valid));
-        if let Ok((p, _)) = refine_relative_pose(&pose, &cx1, &cx2, &opts.refine_options) {
-            pose = p;
+        // Refine on the cheiral inliers, re-select them with the refined pose
+        // at a threshold wider than RANSAC's and refine again until the set
+        // is stable. Re-selecting at the RANSAC threshold itself (2 sigma for
+        // 1 px noise at 2 px) keeps the estimate near the model that selected
+        // the points: the inliers it disagrees with are cut. Over 100 scenes
+        // (90-degree field of view, 1 px noise, 500 inliers + 500 outliers,
+        // 2 px threshold; tests/robustness.rs) the mean rotation error was
+        // 0.0365 deg that way, 0.0324 deg with a 1.5x wider set and a 2 px
+        // Cauchy loss, 0.0328 deg with the noise-adaptive setting, against
+        // 0.0282 deg for the maximum-likelihood pose on the true inliers. At
+        // 0.5 px noise the fixed 2 px setting admits more outliers: mean
+        // 0.0183 (90 deg) / 0.0324 (62 deg) against 0.0171 / 0.0303 adaptive
+        // (100 other scenes each).
+        let mut refine_sq = max_sq * opts.refine_threshold_factor * opts.refine_threshold_factor;
+        let mut refine_options = opts.refine_options.clone();
+        if opts.adaptive_refine {
+            // Robust noise estimate from the RANSAC inliers' Sampson errors
+            // (1.4826 x median absolute residual; the inlier set is cut at
+            // `max_error`, so it cannot exceed that).
+            let mut abs: Vec<f64> =
+                ix1.iter().zip(&ix2).map(|(p, q)| sampson_error_sq(&rep.model, p, q).sqrt()).collect();
+            abs.sort_by(f64::total_cmp);
+            let sigma = (1.4826 * abs[abs.len() / 2]).min(opts.ransac.max_error);
+            if sigma.is_finite() && sigma > 0.0 {
+                let thr =
+                    (3.0 * sigma).clamp(opts.ransac.max_error, opts.refine_threshold_factor * opts.ransac.max_error);
+                refine_sq = thr * thr;
+                refine_options.loss = match refine_options.loss {
+                    RobustLoss::Trivial => RobustLoss::Trivial,
+                    RobustLoss::Huber(_) => RobustLoss::Huber(2.0 * sigma),
+                    RobustLoss::Cauchy(_) => RobustLoss::Cauchy(2.0 * sigma),
+                };
+            }
+        }
+        let mut mask = vec![false; x1.len()];
+        for (&i, &v) in idx.iter().zip(&rec.valid) {
+            mask[i] = v;
+        }
+        for _ in 0..opts.refine_rounds.max(1) {
+            let (cx1, cx2) = (masked(x1, &mask), masked(x2, &mask));
+            match refine_relative_pose(&pose, &cx1, &cx2, &refine_options) {
+                Ok((p, _)) => pose = p,
+                Err(_) => break,
+            }
+            let (_, _, cheiral) = masks_of(&pose, refine_sq);
+            if cheiral == mask {
+                break;
+            }
+            mask = cheiral;
         }
     }
-    let essential = essential_from_pose(&pose);
-    let max_sq = opts.ransac.max_error * opts.ransac.max_error;
-    let inlier_mask: Vec<bool> = x1.iter().zip(x2).map(|(p, q)| sampson_error_sq(&essential, p, q) <= max_sq).collect();
+    let (essential, inlier_mask, cheiral_mask) = masks_of(&pose, max_sq);
     let num_inliers = inlier_mask.iter().filter(|m| **m).count();
-    let (valid, _, _) = essential_5pt::cheirality(&pose.rotation_matrix(), &pose.translation, x1, x2);
-    let cheiral_mask: Vec<bool> = inlier_mask.iter().zip(&valid).map(|(a, b)| *a && *b).collect();
     let num_cheiral_inliers = cheiral_mask.iter().filter(|m| **m).count();
     Ok(RelativePoseReport {
         cam2_from_cam1: pose,
@@ -387,6 +483,48 @@ mod tests {
         let true_inliers = s.is_inlier.iter().filter(|b| **b).count();
         assert!(r.num_inliers >= true_inliers * 9 / 10);
         assert!(r.num_cheiral_inliers >= true_inliers * 9 / 10);
+    }
+
+    /// The early-exit scorer gives the plain support for every model it
+    /// keeps, and drops only models that cannot beat the bound.
+    #[test]
+    fn early_exit_score_matches_full_support() {
+        use crate::ransac::SupportAccumulator;
+        let s = relative_scene(7, 700, 1e-3, 0.5);
+        let est = EssentialEstimator { x1: &s.x1, x2: &s.x2 };
+        let mut buf = vec![0.0; s.x1.len()];
+        let max_sq = 4e-3f64.powi(2);
+        let mut models = Vec::new();
+        for k in 0..40 {
+            let sample: Vec<usize> = (0..5).map(|i| (k * 37 + i * 131) % s.x1.len()).collect();
+            est.estimate_minimal(&sample, &mut models);
+        }
+        models.push(essential_from_pose(&s.cam2_from_cam1));
+        let full = |e: &Mat3, buf: &mut [f64]| {
+            est.squared_residuals(e, buf);
+            let mut acc = SupportAccumulator::default();
+            acc.add_all(buf, max_sq);
+            acc.finish(max_sq)
+        };
+        let truth = full(&models[models.len() - 1], &mut buf);
+        let (mut kept, mut dropped) = (0, 0);
+        for measure in [SupportMeasure::Msac, SupportMeasure::InlierCount] {
+            for e in &models {
+                let plain = full(e, &mut buf);
+                assert_eq!(est.score(e, max_sq, measure, None, &mut buf), Some(plain));
+                match est.score(e, max_sq, measure, Some(&truth), &mut buf) {
+                    Some(sup) => {
+                        assert_eq!(sup, plain);
+                        kept += 1;
+                    }
+                    None => {
+                        assert!(!plain.is_better_than(&truth, measure));
+                        dropped += 1;
+                    }
+                }
+            }
+        }
+        assert!(kept > 0 && dropped > 0, "kept {kept}, dropped {dropped}");
     }
 
     #[test]

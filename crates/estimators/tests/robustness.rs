@@ -5,48 +5,166 @@
 
 use colslam_estimators::ransac::required_trials;
 use colslam_estimators::synthetic::{
-    absolute_scene, relative_scene_wide, rotation_error_deg, translation_dir_error_deg,
+    RelativeScene, absolute_scene, relative_scene, relative_scene_wide, rotation_error_deg, translation_dir_error_deg,
 };
 use colslam_estimators::{
-    AbsolutePoseOptions, Estimator, RansacOptions, RelativePoseOptions, estimate_absolute_pose, estimate_relative_pose,
-    ransac,
+    AbsolutePoseOptions, Estimator, Mat3, RansacOptions, RelativePoseOptions, RelativePoseRefineOptions, RobustLoss,
+    Vec2, Vec3, essential_from_pose, estimate_absolute_pose, estimate_relative_pose, ransac, refine_relative_pose,
 };
-use colslam_geometry::SplitMix64;
+use colslam_geometry::{Quat, Rigid3, SplitMix64};
+use nalgebra::SMatrix;
 
 /// 1 px at a 500 px focal length, in normalised units.
 const ONE_PIXEL: f64 = 1.0 / 500.0;
 
-/// Relative pose over `seeds` (90-degree field of view, 1000 matches, 1 px
-/// noise, 50 % outliers). Returns the rotation errors (degrees, sorted) and
-/// the worst translation direction error.
+/// Relative pose over `seeds`, asserting the issue's bound on every scene:
+/// rotation error under 0.1 degrees and translation direction error under
+/// 1 degree. Returns the rotation errors (degrees, sorted) and the worst
+/// translation direction error.
 ///
-/// Even the maximum-likelihood pose (refined from the ground truth on the
-/// true inliers) exceeds 0.1 degrees of rotation error for a few percent of
-/// such random scenes (up to 0.17 degrees at a 62-degree field of view): the
-/// rotation/translation ambiguity of a narrow field of view makes it
-/// inherent. So the bound is asserted on the 95th percentile, with a hard
-/// cap of 0.2 degrees on every scene.
+/// Configuration ([`relative_scene_wide`]): a 1000 x 1000 px image at a
+/// 500 px focal length (90-degree field of view, a wide-angle camera),
+/// 1 px Gaussian noise in both views, 1000 correspondences of which 50 % are
+/// outliers (a random point of the second image), points 2-8 m deep,
+/// baseline 0.5-1 m in a random direction (forward, lateral or oblique),
+/// rotation up to 17 degrees, 2 px Sampson threshold. The Cramér-Rao bound
+/// on the rotation (RMS, from the 500 true inliers) is 0.031 deg on average
+/// and at most 0.043 deg over seeds 0..100, so 0.1 deg is reachable on every
+/// scene; ours measured mean 0.033, max 0.081 deg (the maximum-likelihood
+/// pose on the true inliers: 0.028 and 0.081).
 fn check_relative(seeds: std::ops::Range<u64>) -> (Vec<f64>, f64) {
     let mut rot = Vec::new();
     let mut worst_t = 0.0f64;
     for seed in seeds {
         let s = relative_scene_wide(seed, 1000, ONE_PIXEL, 0.5);
-        let opts = RelativePoseOptions {
-            ransac: RansacOptions { seed, ..RelativePoseOptions::default().ransac },
-            ..Default::default()
-        };
-        let r = estimate_relative_pose(&s.x1, &s.x2, &opts).unwrap();
+        let r = estimate_relative_pose(&s.x1, &s.x2, &relative_options(seed)).unwrap();
         let er = rotation_error_deg(&r.cam2_from_cam1, &s.cam2_from_cam1);
         let et = translation_dir_error_deg(&r.cam2_from_cam1.translation, &s.cam2_from_cam1.translation);
-        assert!(er < 0.2, "seed {seed}: rotation error {er} deg");
+        assert!(er < 0.1, "seed {seed}: rotation error {er} deg");
         assert!(et < 1.0, "seed {seed}: translation direction error {et} deg");
         rot.push(er);
         worst_t = worst_t.max(et);
     }
     rot.sort_by(f64::total_cmp);
-    let p95 = rot[(rot.len() * 95).div_ceil(100) - 1];
-    assert!(p95 < 0.1, "95th percentile rotation error {p95} deg");
     (rot, worst_t)
+}
+
+fn relative_options(seed: u64) -> RelativePoseOptions {
+    RelativePoseOptions {
+        ransac: RansacOptions { seed, ..RelativePoseOptions::default().ransac },
+        ..Default::default()
+    }
+}
+
+/// Signed Sampson residuals of `x1[i] <-> x2[i]` under `pose`.
+fn signed_sampson(pose: &Rigid3, x1: &[Vec2], x2: &[Vec2]) -> Vec<f64> {
+    let e = essential_from_pose(pose);
+    x1.iter()
+        .zip(x2)
+        .map(|(p, q)| {
+            let a = Vec3::new(p.x, p.y, 1.0);
+            let b = Vec3::new(q.x, q.y, 1.0);
+            let (ea, etb) = (e * a, e.transpose() * b);
+            b.dot(&ea) / (ea.x * ea.x + ea.y * ea.y + etb.x * etb.x + etb.y * etb.y).sqrt()
+        })
+        .collect()
+}
+
+/// Cramér-Rao bound of the relative rotation of a scene: the covariance
+/// (radians², left perturbation) of an unbiased estimator from the
+/// noise-free true inliers with isotropic Gaussian image noise `sigma` in
+/// both views. The Sampson residual is the first-order geometric error, of
+/// variance `sigma²`, so the Fisher information is `JᵀJ / sigma²` over the
+/// five pose parameters (rotation, unit translation direction).
+fn rotation_crlb(s: &RelativeScene, sigma: f64) -> Mat3 {
+    let pose = Rigid3::new(s.cam2_from_cam1.rotation, s.cam2_from_cam1.translation.normalize());
+    let proj = |p: &Vec3| Vec2::new(p.x / p.z, p.y / p.z);
+    let inl = s.points.iter().zip(&s.is_inlier).filter(|(_, i)| **i).map(|(p, _)| p);
+    let x1: Vec<Vec2> = inl.clone().map(proj).collect();
+    let x2: Vec<Vec2> = inl.map(|p| proj(&pose.transform_point(p))).collect();
+    let t = pose.translation;
+    let b1 = t.cross(&if t.x.abs() < 0.9 { Vec3::x() } else { Vec3::y() }).normalize();
+    let b2 = t.cross(&b1);
+    let perturbed = |k: usize, h: f64| {
+        let mut d = [0.0; 5];
+        d[k] = h;
+        let q = Quat::from_scaled_axis(Vec3::new(d[0], d[1], d[2])) * pose.rotation;
+        Rigid3::new(q, (t + b1 * d[3] + b2 * d[4]).normalize())
+    };
+    let h = 1e-6;
+    let cols: Vec<Vec<f64>> = (0..5)
+        .map(|k| {
+            let (p, m) = (signed_sampson(&perturbed(k, h), &x1, &x2), signed_sampson(&perturbed(k, -h), &x1, &x2));
+            p.iter().zip(&m).map(|(a, b)| (a - b) / (2.0 * h)).collect()
+        })
+        .collect();
+    let jtj = SMatrix::<f64, 5, 5>::from_fn(|a, b| cols[a].iter().zip(&cols[b]).map(|(u, v)| u * v).sum());
+    let cov = jtj.try_inverse().expect("the true pose of a general scene is observable") * (sigma * sigma);
+    cov.fixed_view::<3, 3>(0, 0).into_owned()
+}
+
+/// Probability that a zero-mean Gaussian rotation error of covariance `cov`
+/// (radians²) exceeds `deg` degrees, by Monte Carlo with a seeded RNG.
+fn prob_rotation_exceeds(cov: &Mat3, deg: f64, rng: &mut SplitMix64) -> f64 {
+    let l = cov.cholesky().expect("a covariance is positive definite").l();
+    let draws = 4000;
+    let hits = (0..draws)
+        .filter(|_| (l * Vec3::new(rng.normal(), rng.normal(), rng.normal())).norm().to_degrees() > deg)
+        .count();
+    hits as f64 / draws as f64
+}
+
+/// Rotation error (degrees) of the maximum-likelihood pose from the true
+/// inliers only (an oracle: Sampson-error least squares from the ground
+/// truth, no outlier among its points).
+fn oracle_rotation_error_deg(s: &RelativeScene) -> f64 {
+    let pick = |x: &[Vec2]| -> Vec<Vec2> { x.iter().zip(&s.is_inlier).filter(|(_, i)| **i).map(|(p, _)| *p).collect() };
+    let opts = RelativePoseRefineOptions { loss: RobustLoss::Trivial, max_iterations: 200, function_tolerance: 1e-14 };
+    let (ml, _) = refine_relative_pose(&s.cam2_from_cam1, &pick(&s.x1), &pick(&s.x2), &opts)
+        .expect("refinement from the true pose succeeds");
+    rotation_error_deg(&ml, &s.cam2_from_cam1)
+}
+
+/// The narrower 62-degree field of view ([`relative_scene`]: a 600 x 600 px
+/// image at a 500 px focal length, close to a 640 x 480 camera at 500 px,
+/// 65 x 51 degrees; otherwise the configuration of [`check_relative`]).
+/// There the statistical limit itself exceeds 0.1 deg on many scenes: the
+/// rotation/translation ambiguity of a narrow field of view (a small
+/// rotation about an axis orthogonal to the baseline mimics a change of the
+/// translation direction) leaves the Cramér-Rao RMS rotation error at
+/// 0.060 deg on average, 0.093 at the 95th percentile and 0.101 deg at
+/// worst over seeds 0..100, worst for lateral baselines. An efficient
+/// estimator then exceeds 0.1 deg on 8.7 of those 100 scenes (summed
+/// Monte-Carlo probabilities) and the maximum-likelihood pose on the true
+/// inliers does on 6 (ours: 7; mean 0.055 deg against the oracle's 0.048). So this test compares against those limits instead of
+/// the fixed bound: ours must stay within 25 % of the oracle's mean error,
+/// exceed 0.1 deg on at most 1.5 x the predicted number of scenes (+ 2),
+/// and stay under 0.2 deg everywhere.
+fn check_relative_narrow(seeds: std::ops::Range<u64>) -> (f64, f64, f64, usize, f64) {
+    let (mut ours, mut oracle, mut expected_over, mut over) = (0.0, 0.0, 0.0, 0);
+    let mut worst = 0.0f64;
+    let mut mc = SplitMix64::new(99);
+    let count = seeds.end - seeds.start;
+    for seed in seeds {
+        let s = relative_scene(seed, 1000, ONE_PIXEL, 0.5);
+        let r = estimate_relative_pose(&s.x1, &s.x2, &relative_options(seed)).unwrap();
+        let er = rotation_error_deg(&r.cam2_from_cam1, &s.cam2_from_cam1);
+        let et = translation_dir_error_deg(&r.cam2_from_cam1.translation, &s.cam2_from_cam1.translation);
+        assert!(er < 0.2, "seed {seed}: rotation error {er} deg");
+        assert!(et < 1.0, "seed {seed}: translation direction error {et} deg");
+        ours += er;
+        oracle += oracle_rotation_error_deg(&s);
+        expected_over += prob_rotation_exceeds(&rotation_crlb(&s, ONE_PIXEL), 0.1, &mut mc);
+        over += usize::from(er > 0.1);
+        worst = worst.max(er);
+    }
+    let (ours, oracle) = (ours / count as f64, oracle / count as f64);
+    assert!(ours <= 1.25 * oracle, "mean rotation error {ours} deg vs the oracle's {oracle} deg");
+    assert!(
+        over as f64 <= 1.5 * expected_over + 2.0,
+        "{over} scenes over 0.1 deg, {expected_over:.1} expected from the Cramér-Rao bound"
+    );
+    (ours, oracle, expected_over, over, worst)
 }
 
 fn check_absolute(seeds: std::ops::Range<u64>) -> (f64, f64) {
@@ -82,13 +200,31 @@ fn absolute_pose_noise_outliers_few_seeds() {
 }
 
 #[test]
-#[ignore = "statistical, ~1 min in release; run with --release -- --ignored"]
+#[ignore = "statistical, ~10 s in release; run with --release -- --ignored"]
 fn relative_pose_noise_outliers_many_seeds() {
     let (r, t) = check_relative(0..100);
     let mean = r.iter().sum::<f64>() / r.len() as f64;
     eprintln!(
         "relative pose over 100 seeds: rotation mean {mean:.4}, p95 {:.4}, max {:.4} deg; worst translation {t:.4} deg",
         r[94], r[99]
+    );
+}
+
+#[test]
+fn relative_pose_narrow_fov_few_seeds() {
+    let (ours, oracle, expected, over, worst) = check_relative_narrow(0..5);
+    eprintln!(
+        "62-deg FOV: mean {ours:.4} vs oracle {oracle:.4} deg; {over} over 0.1 ({expected:.2} expected); max {worst:.4}"
+    );
+}
+
+#[test]
+#[ignore = "statistical, ~15 s in release; run with --release -- --ignored"]
+fn relative_pose_narrow_fov_many_seeds() {
+    let (ours, oracle, expected, over, worst) = check_relative_narrow(0..100);
+    eprintln!(
+        "62-deg FOV over 100 seeds: rotation mean {ours:.4} vs oracle {oracle:.4} deg; {over} scenes over 0.1 deg \
+         ({expected:.1} expected from the Cramér-Rao bound); max {worst:.4} deg"
     );
 }
 

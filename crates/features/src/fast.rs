@@ -148,6 +148,17 @@ impl FastMap {
         }
     }
 
+    /// Forgets every corner found so far (the score map is cleared where
+    /// corners were, so this costs in proportion to their number).
+    pub fn reset(&mut self) {
+        for &ci in &self.corners {
+            if let Some(s) = self.score.get_mut(ci as usize) {
+                *s = 0;
+            }
+        }
+        self.corners.clear();
+    }
+
     /// Detects corners with threshold `t` in the rectangle `[x0, x1) x [y0, y1)`,
     /// writing their scores into the map and appending them to `corners`.
     ///
@@ -194,19 +205,39 @@ impl FastMap {
             let p12 = span(y, -3);
             let p14 = span(y - 2, -2);
             prefilter_row(&[c, p0, p2, p4, p6, p8, p10, p12, p14], t, &mut self.flags[..n]);
-            // Survivors are sparse: skip 8 flags at a time.
+            // Survivors are sparse: skip 32 flags at a time.
             let mut survivors = Vec::new();
             std::mem::swap(&mut survivors, &mut self.survivors);
             survivors.clear();
-            for (k, chunk) in self.flags[..n].chunks(8).enumerate() {
-                let mut word = [0u8; 8];
-                word[..chunk.len()].copy_from_slice(chunk);
-                let mut bits = u64::from_le_bytes(word);
+            let flags = &self.flags[..n];
+            // Flags as little-endian words: byte j of word k is column 8k + j.
+            let mut word_of = |k: usize, mut bits: u64| {
                 while bits != 0 {
                     survivors.push(k * 8 + bits.trailing_zeros() as usize / 8);
                     // Flags are 0 or 1: clear the lowest set byte.
                     bits &= bits - 1;
                 }
+            };
+            // Blocks of 32 columns with no survivor are skipped at once.
+            let mut k = 0;
+            for block in flags.chunks_exact(32) {
+                let w: [u64; 4] = std::array::from_fn(|j| {
+                    let b: [u8; 8] = block[8 * j..8 * j + 8].try_into().unwrap_or([0; 8]);
+                    u64::from_le_bytes(b)
+                });
+                if (w[0] | w[1] | w[2] | w[3]) != 0 {
+                    for (j, &bits) in w.iter().enumerate() {
+                        word_of(k + j, bits);
+                    }
+                }
+                k += 4;
+            }
+            for chunk in flags[k * 8..].chunks(8) {
+                let mut word = [0u8; 8];
+                word[..chunk.len()].copy_from_slice(chunk);
+                let bits = u64::from_le_bytes(word);
+                word_of(k, bits);
+                k += 1;
             }
             for &i in &survivors {
                 if !keep(x0 + i) {

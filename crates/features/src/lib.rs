@@ -2,8 +2,9 @@
 //!
 //! * [`OrbExtractor`]: ORB features following the ORB-SLAM recipe (Mur-Artal
 //!   et al., ORB-SLAM / ORB-SLAM2 `ORBextractor`; Rublee et al., ICCV 2011):
-//!   an 8-level pyramid, FAST-9 per grid cell with a fallback threshold, a
-//!   quadtree that spreads the keypoints over the image, intensity-centroid
+//!   an 8-level pyramid, FAST-9 with a fallback threshold, the strongest
+//!   Harris corners of each level (as OpenCV's ORB; ORB-SLAM's quadtree that
+//!   spreads the keypoints over the image is an option), intensity-centroid
 //!   orientation and steered rBRIEF descriptors.
 //! * [`NnMatcher`]: nearest-neighbour matching (Hamming for binary
 //!   descriptors, Euclidean for float ones) with mutual (cross-check), ratio
@@ -57,7 +58,7 @@ mod types;
 pub use error::FeatureError;
 pub use flow::{FlowScore, flow_score};
 pub use matcher::{NnMatcher, NnMatcherOptions, hamming_distance};
-pub use orb::{FallbackMode, OrbExtractor, OrbLevelReport, OrbOptions, OrbReport, ScoreType};
+pub use orb::{FallbackMode, OrbExtractor, OrbLevelReport, OrbOptions, OrbReport, ScoreType, Selection};
 pub use registry::{
     EXTRACTOR_NAMES, ExtractorOptions, MATCHER_NAMES, MatcherOptions, extractor_by_name, matcher_by_name,
 };

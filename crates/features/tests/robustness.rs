@@ -5,7 +5,7 @@ mod common;
 
 use colslam_features::{
     Descriptors, FeatureError, FeatureExtractor, Matcher, NnMatcher, NnMatcherOptions, OrbExtractor, OrbOptions,
-    extractor_by_name, flow_score,
+    Selection, extractor_by_name, flow_score,
 };
 use colslam_image::Image;
 use common::procedural_image;
@@ -74,14 +74,20 @@ fn keypoints_are_well_formed_and_spread() {
         let expected = 31.0 * 1.2f32.powi(k.octave as i32);
         assert!((k.size - expected).abs() < 0.02 * expected, "{k:?}");
     }
-    // Spread: every cell of a 4x4 grid over the image holds keypoints.
+    // Levels hold their geometric quota.
+    assert_eq!(report.levels[0].kept, 217);
+    // Spread (the quadtree selection): every cell of a 4x4 grid over the
+    // image holds keypoints.
+    let quadtree = OrbExtractor::new(OrbOptions { selection: Selection::Quadtree, ..OrbOptions::default() }).unwrap();
+    let (f, report) = quadtree.extract_with_report(&img).unwrap();
+    f.validate().unwrap();
+    assert_eq!(f.len(), 1000, "{report:?}");
+    assert_eq!(report.levels[0].kept, 217);
     let mut cells = [0usize; 16];
     for k in &f.keypoints {
         cells[((k.y / 120.0) as usize).min(3) * 4 + ((k.x / 160.0) as usize).min(3)] += 1;
     }
     assert!(cells.iter().all(|&c| c > 10), "{cells:?}");
-    // Levels hold their geometric quota.
-    assert_eq!(report.levels[0].kept, 217);
 }
 
 #[test]

@@ -105,6 +105,8 @@ pub struct MapState {
     pub keyframes: Vec<Keyframe>,
     /// Non-keyframes to localise.
     pub records: Vec<FrameRecord>,
+    /// Frame indices of the initial pair.
+    pub initial_frames: (usize, usize),
     /// Registered images at the last global BA.
     last_global_images: usize,
     /// Points at the last global BA.
@@ -123,6 +125,12 @@ pub type FrameInliers = Vec<(Vec2, Point3DId)>;
 /// localised frames, the frames that failed (index, timestamp, name), and
 /// each localised frame's inliers by frame index.
 pub type Localization = (Vec<FramePose>, Vec<(usize, f64, String)>, HashMap<usize, FrameInliers>);
+
+/// Largest angle (degrees) between the optical axes of a new keyframe and
+/// an older one it is matched against as a revisit.
+pub const REVISIT_MAX_ANGLE_DEG: f64 = 30.0;
+/// Largest distance between their centres, in median keyframe spacings.
+pub const REVISIT_MAX_SPACINGS: f64 = 10.0;
 
 /// Scale between ORB pyramid levels: a keypoint found at octave `o` is
 /// located to about `ORB_LEVEL_SCALE^o` pixels (ORB-SLAM's level sigma).
@@ -316,6 +324,7 @@ impl MapState {
                 Keyframe { image_id: ids[1], data: b.clone() },
             ],
             records: Vec::new(),
+            initial_frames: (a.index, b.index),
             last_global_images: 0,
             last_global_points: 0,
             sent_points: HashSet::new(),
@@ -464,6 +473,16 @@ impl MapState {
                 return Ok(Err(RegisterFailure::PoseFailed(e.to_string())));
             }
         };
+        // Older keyframes that look the same way (the camera came back to a
+        // view it mapped before): matching them too ties the new keyframe's
+        // tracks to the old points, which holds the map's scale and shape
+        // together where short-baseline keyframes alone drift (a pose-guided
+        // form of ORB-SLAM's covisibility matching and loop closing).
+        let revisits = self.revisited_keyframes(&pose.cam_from_world, &recent, opts.match_revisited);
+        for k in revisits {
+            let m = timings.time(Stage::Matching, || frontend.match_frames(data, &self.keyframes[k].data))?;
+            kf_matches.push((k, m));
+        }
         let image_id = self.rec.next_image_id();
         let mut img = Image::new(image_id, data.name.clone(), self.camera_id, data.pixels.clone());
         img.cam_from_world = pose.cam_from_world;
@@ -509,9 +528,10 @@ impl MapState {
 
         let tri = triangulator_options(opts);
         timings.time(Stage::Triangulation, || -> Result<(), SfmError> {
+            // Tracks are completed and merged after local BA, as COLMAP's
+            // iterative local refinement does.
             triangulate_image(&mut self.rec, &self.graph, image_id, &tri)?;
             retriangulate(&mut self.rec, &self.graph, Some(&[image_id]), &tri)?;
-            complete_and_merge_image(&mut self.rec, &self.graph, image_id, &tri)?;
             Ok(())
         })?;
         let ba = timings.time(Stage::LocalBa, || {
@@ -549,6 +569,46 @@ impl MapState {
         }
         self.keyframes.push(Keyframe { image_id, data: data.clone() });
         Ok(Ok(image_id))
+    }
+
+    /// Up to `max` registered keyframes outside `exclude` whose optical axis
+    /// is within [`REVISIT_MAX_ANGLE_DEG`] of the pose's and whose centre
+    /// lies within the map's median keyframe spacing times
+    /// [`REVISIT_MAX_SPACINGS`], nearest in direction first.
+    fn revisited_keyframes(&self, cam_from_world: &Rigid3, exclude: &[usize], max: usize) -> Vec<usize> {
+        if max == 0 || self.keyframes.len() < 3 {
+            return Vec::new();
+        }
+        let axis = |p: &Rigid3| p.rotation.inverse() * Vec3::z();
+        let (dir, centre) = (axis(cam_from_world), cam_from_world.center());
+        let poses: Vec<Option<Rigid3>> = self
+            .keyframes
+            .iter()
+            .map(|k| self.rec.image(k.image_id).filter(|i| i.registered).map(|i| i.cam_from_world))
+            .collect();
+        let mut steps: Vec<f64> = poses
+            .windows(2)
+            .filter_map(|w| Some((w[0]?.center() - w[1]?.center()).norm()))
+            .filter(|d| d.is_finite())
+            .collect();
+        if steps.is_empty() {
+            return Vec::new();
+        }
+        steps.sort_by(f64::total_cmp);
+        let max_dist = REVISIT_MAX_SPACINGS * steps[steps.len() / 2];
+        let cos_max = REVISIT_MAX_ANGLE_DEG.to_radians().cos();
+        let mut found: Vec<(f64, usize)> = poses
+            .iter()
+            .enumerate()
+            .filter(|(k, _)| !exclude.contains(k))
+            .filter_map(|(k, p)| {
+                let p = (*p)?;
+                let cos = axis(&p).dot(&dir);
+                (cos >= cos_max && (p.center() - centre).norm() <= max_dist).then_some((cos, k))
+            })
+            .collect();
+        found.sort_by(|a, b| b.0.total_cmp(&a.0).then(a.1.cmp(&b.1)));
+        found.into_iter().take(max).map(|(_, k)| k).collect()
     }
 
     /// Final global BA and filtering at the end of the run.
@@ -605,8 +665,24 @@ impl MapState {
             .collect();
         let keyframe_frames: HashSet<usize> = poses.iter().map(|p| p.index).collect();
         let started = std::time::Instant::now();
-        let results: Vec<(usize, Option<(FramePose, FrameInliers)>)> = self
-            .records
+        // One record per frame: a frame can hold several (tracked by two
+        // maps that were merged, tracked backwards and relocalised), whose
+        // observations are pooled; a frame promoted anywhere is a keyframe.
+        let mut merged: Vec<FrameRecord> = Vec::new();
+        let mut slot: HashMap<usize, usize> = HashMap::new();
+        for r in &self.records {
+            match slot.get(&r.index) {
+                Some(&k) => {
+                    merged[k].obs.extend_from_slice(&r.obs);
+                    merged[k].promoted |= r.promoted;
+                }
+                None => {
+                    slot.insert(r.index, merged.len());
+                    merged.push(r.clone());
+                }
+            }
+        }
+        let results: Vec<(usize, Option<(FramePose, FrameInliers)>)> = merged
             .par_iter()
             .enumerate()
             .filter(|(_, r)| !r.promoted && !keyframe_frames.contains(&r.index) && opts.localize_all_frames)
@@ -622,12 +698,15 @@ impl MapState {
                     poses.push(p);
                 }
                 None => {
-                    let r = &self.records[i];
+                    let r = &merged[i];
                     failed.push((r.index, r.timestamp, r.name.clone()));
                 }
             }
         }
+        // One pose per frame (a keyframe first: the sort is stable and
+        // keyframes were pushed first).
         poses.sort_by_key(|p| p.index);
+        poses.dedup_by_key(|p| p.index);
         failed.sort_by_key(|f| f.0);
         (poses, failed, inliers)
     }

@@ -169,8 +169,24 @@ fn join(
     let mut src = source.rec.clone();
     src.transform(sim);
     let mut image_map: HashMap<ImageId, ImageId> = HashMap::new();
+    // A frame that is a keyframe of both maps (one map tracked backwards
+    // over frames the other had tracked) stays one image: the source's
+    // observations of it go to the target's image of the same frame, whose
+    // keypoints are the same.
+    let existing: HashMap<String, ImageId> = target
+        .keyframes
+        .iter()
+        .filter(|k| target.rec.image(k.image_id).is_some_and(|i| i.registered))
+        .map(|k| (k.data.name.clone(), k.image_id))
+        .collect();
+    let mut shared: std::collections::HashSet<ImageId> = std::collections::HashSet::new();
     for id in src.registered_image_ids().to_vec() {
         let Some(img) = src.image(id) else { continue };
+        if let Some(&same) = existing.get(&img.name) {
+            image_map.insert(id, same);
+            shared.insert(id);
+            continue;
+        }
         let new_id = target.rec.next_image_id();
         let mut copy =
             Image::new(new_id, img.name.clone(), target.camera_id, img.points2d.iter().map(|p| p.xy).collect());
@@ -182,10 +198,21 @@ fn join(
     }
     let mut point_map: BTreeMap<Point3DId, Point3DId> = BTreeMap::new();
     for (pid, p) in src.points3d() {
+        let mut seen = std::collections::HashSet::new();
         let track: Vec<TrackElement> = p
             .track
             .iter()
             .filter_map(|e| image_map.get(&e.image_id).map(|&i| TrackElement::new(i, e.point2d_idx)))
+            // On a shared image the keypoint may already observe a target
+            // point, and a track sees an image once.
+            .filter(|e| {
+                let free = target
+                    .rec
+                    .image(e.image_id)
+                    .and_then(|img| img.points2d.get(e.point2d_idx as usize))
+                    .is_some_and(|p| p.point3d_id.is_none());
+                free && seen.insert(e.image_id)
+            })
             .collect();
         if track.len() < 2 {
             continue;
@@ -194,12 +221,16 @@ fn join(
         point_map.insert(pid, new_id);
     }
     for (a, b, _) in source.graph.image_pairs() {
-        if let (Some(&na), Some(&nb)) = (image_map.get(&a), image_map.get(&b)) {
+        if let (Some(&na), Some(&nb)) = (image_map.get(&a), image_map.get(&b))
+            && na != nb
+        {
             target.graph.add_correspondences(na, nb, &source.graph.matches_between(a, b))?;
         }
     }
     for (kb, ka, edge) in cross {
-        if let Some(&nb) = image_map.get(kb) {
+        if let Some(&nb) = image_map.get(kb)
+            && nb != *ka
+        {
             target.graph.add_correspondences(nb, *ka, edge)?;
         }
     }
@@ -216,11 +247,17 @@ fn join(
         }
     }
     for kf in &source.keyframes {
+        if shared.contains(&kf.image_id) {
+            continue;
+        }
         if let Some(&id) = image_map.get(&kf.image_id) {
             target.keyframes.push(Keyframe { image_id: id, data: kf.data.clone() });
         }
     }
     for (old_id, sig) in source.sigmas.iter() {
+        if shared.contains(old_id) {
+            continue;
+        }
         if let Some(&id) = image_map.get(old_id) {
             std::sync::Arc::make_mut(&mut target.sigmas).insert(id, sig.clone());
         }

@@ -22,6 +22,11 @@ const MAX_PENDING_FRAMES: usize = 60;
 /// came); bounds memory on long failures (about 0.2 MB per frame).
 const MAX_ORPHANS: usize = 500;
 
+/// Recent frames kept for tracking backwards from a new map (about 0.2 MB
+/// each): a map initialised late extends itself over the frames before its
+/// initial pair.
+const MAX_HISTORY: usize = 120;
+
 /// Flow lines sent per frame event (a subsample of the matches).
 const MAX_FLOW_LINES: usize = 300;
 
@@ -89,6 +94,12 @@ pub struct Slam {
     pending: Vec<(FrameData, usize)>,
     /// Frames no map tracked when they came (relocalised at the end).
     orphans: Vec<FrameData>,
+    /// The most recent frames (at most [`MAX_HISTORY`]), for the backward
+    /// pass after an initialisation.
+    history: std::collections::VecDeque<FrameData>,
+    /// True while tracking backwards (lost tracking ends the pass instead
+    /// of the map).
+    backward: bool,
     lost: usize,
     frames: Vec<FrameInfo>,
     timings: StageTimings,
@@ -127,6 +138,8 @@ impl Slam {
             prev: None,
             pending: Vec::new(),
             orphans: Vec::new(),
+            history: std::collections::VecDeque::new(),
+            backward: false,
             lost: 0,
             frames: Vec::new(),
             timings: StageTimings::default(),
@@ -206,6 +219,10 @@ impl Slam {
             self.timings.time(Stage::Features, || frontend.process(frame))?
         };
         self.frames.push(FrameInfo { index: data.index, timestamp: data.timestamp, name: data.name.clone() });
+        if self.history.len() >= MAX_HISTORY {
+            self.history.pop_front();
+        }
+        self.history.push_back(data.clone());
         self.step(data)
     }
 
@@ -245,7 +262,7 @@ impl Slam {
         let camera = self.frontend.camera().clone();
         let init = MapState::initialize(map_index, &window, &pair_matches, &camera, &self.opts, &mut self.timings)?;
         self.timings.add(Stage::Initialization, started.elapsed());
-        let Some((mut map, i, j)) = init else {
+        let Some((map, i, j)) = init else {
             let note = format!(
                 "initialisation failed on frames {}..={}{}",
                 window[0].index,
@@ -261,33 +278,23 @@ impl Slam {
             self.state = State::Initializing { window: rest };
             return Ok(());
         };
-        // Frames of the window other than the pair: earlier ones are only
-        // localised (their matches to the pair are recorded); later ones go
+        // Frames of the window other than the pair: those before the second
+        // image (between the pair, then before it) are tracked backwards
+        // from it, with the earlier frames of the history; later ones go
         // through tracking as usual.
         let (ida, idb) = (map.keyframes[0].image_id, map.keyframes[1].image_id);
+        let first_index = window[i].index;
         let mut later = Vec::new();
+        let mut before = Vec::new();
         for (k, data) in window.into_iter().enumerate() {
             if k == i || k == j {
                 continue;
             }
             if k > j {
                 later.push(data);
-                continue;
+            } else {
+                before.push(data);
             }
-            let mut rec = FrameRecord::new(&data);
-            for (kf, other) in [(ida, i), (idb, j)] {
-                let key = if k < other { (k, other) } else { (other, k) };
-                if let Some(ms) = pair_matches.get(&key) {
-                    // Orient the matches with this frame as the query.
-                    let oriented: Vec<Match> = if k < other {
-                        ms.clone()
-                    } else {
-                        ms.iter().map(|m| Match { query: m.train, train: m.query, distance: m.distance }).collect()
-                    };
-                    rec.add_matches(&data, kf, &oriented);
-                }
-            }
-            map.records.push(rec);
         }
         if let Some(old) = self.map.take() {
             self.finished.push(old);
@@ -301,10 +308,62 @@ impl Slam {
             self.emit_keyframe(id);
         }
         self.emit_map(true);
+        let known: std::collections::HashSet<usize> = before.iter().map(|d| d.index).collect();
+        before.extend(self.history.iter().filter(|d| d.index < first_index && !known.contains(&d.index)).cloned());
+        self.track_backward(before)?;
         for data in later {
             self.track(data)?;
         }
         Ok(())
+    }
+
+    /// Tracks the frames before a new map's second initial image in reverse
+    /// order, as the forward pass does after it (offline input allows it;
+    /// COLMAP's incremental mapper has no direction at all). The reference
+    /// is always the keyframe nearest in time (keyframes are ordered by
+    /// distance in time during the pass, nearest last), and keyframes found
+    /// on the way are added; the pass ends at the first
+    /// frame or when tracking is lost, and the frames not reached are kept
+    /// for relocalisation at the end.
+    fn track_backward(&mut self, mut frames: Vec<FrameData>) -> Result<(), SlamError> {
+        frames.sort_by_key(|d| std::cmp::Reverse(d.index));
+        frames.dedup_by_key(|d| d.index);
+        if frames.is_empty() || self.map.is_none() {
+            return Ok(());
+        }
+        self.backward = true;
+        self.prev = None;
+        self.pending.clear();
+        self.lost = 0;
+        let mut rest = frames.into_iter();
+        let mut result = Ok(());
+        for data in rest.by_ref() {
+            // Nearest in time last: it is the reference, and the most
+            // recent ones are those registration matches against.
+            if let Some(map) = self.map.as_mut() {
+                let at = data.index;
+                map.keyframes.sort_by(|a, b| {
+                    b.data.index.abs_diff(at).cmp(&a.data.index.abs_diff(at)).then(a.data.index.cmp(&b.data.index))
+                });
+            }
+            result = self.track(data);
+            if result.is_err() || self.lost > self.opts.max_lost_frames {
+                break;
+            }
+        }
+        let unreached: Vec<FrameData> = rest.collect();
+        if !unreached.is_empty() {
+            tracing::debug!("backward tracking stopped with {} frames left", unreached.len());
+        }
+        self.add_orphans(unreached);
+        self.backward = false;
+        self.prev = None;
+        self.pending.clear();
+        self.lost = 0;
+        if let Some(map) = self.map.as_mut() {
+            map.keyframes.sort_by_key(|k| k.data.index);
+        }
+        result
     }
 
     fn track(&mut self, data: FrameData) -> Result<(), SlamError> {
@@ -389,7 +448,7 @@ impl Slam {
             self.pending.push((data.clone(), rec_idx));
         }
         self.prev = Some((data, matches, rec_idx));
-        if self.lost > self.opts.max_lost_frames {
+        if self.lost > self.opts.max_lost_frames && !self.backward {
             self.reset_map()?;
         }
         Ok(())

@@ -168,3 +168,49 @@ fn refine_all_frames_puts_every_localised_frame_in_the_model() {
     let diagonal = (size[0].powi(2) + size[1].powi(2) + size[2].powi(2)).sqrt();
     assert!(ate.ate_rmse < 1e-3 * diagonal, "ATE {} m", ate.ate_rmse);
 }
+
+#[test]
+fn frames_before_the_initial_pair_are_tracked_backwards() {
+    let opts = small_synth(60, 9);
+    let seq = SyntheticSequence::new(&opts).expect("sequence");
+    let frames = frames_of(&seq, opts.frames, opts.fps);
+    let r = run(&frames, seq.camera(), SlamOptions::default(), EventSink::none());
+    assert_eq!(r.maps.len(), 1, "notes: {:?}", r.notes);
+    let m = &r.maps[0].map;
+    let (first, _) = m.initial_frames;
+    // The fixture's initial pair does not start at frame 0 (the first image
+    // is the one with the most matches in the window), so frames precede it.
+    assert!(first >= 2, "initial pair starts at frame {first}");
+    let earlier: Vec<usize> = m.keyframes.iter().map(|k| k.data.index).filter(|&i| i < first).collect();
+    assert!(!earlier.is_empty(), "no keyframe before the initial pair (frame {first})");
+    // Keyframes stay in frame order after the backward pass.
+    assert!(m.keyframes.windows(2).all(|w| w[0].data.index < w[1].data.index));
+    assert!(r.not_localized.is_empty(), "not localised: {:?}", r.not_localized);
+}
+
+#[test]
+fn a_camera_coming_back_matches_the_keyframes_it_saw_before() {
+    // Out along the path and back again: on the way back the camera sees
+    // what it mapped on the way out, 30 and more frames earlier.
+    let opts = small_synth(45, 10);
+    let seq = SyntheticSequence::new(&opts).expect("sequence");
+    let mut frames = frames_of(&seq, opts.frames, opts.fps);
+    for k in 0..opts.frames {
+        frames.push(frame(opts.frames + k, seq.render(opts.frames - 1 - k).expect("render")));
+    }
+    // Pairs of keyframes in the correspondence graph further apart in the
+    // keyframe list than the `match_keyframes` most recent ones.
+    let far_pairs = |revisited: usize| {
+        let opts = SlamOptions { match_revisited: revisited, ..SlamOptions::default() };
+        let recent = opts.match_keyframes;
+        let r = run(&frames, seq.camera(), opts, EventSink::none());
+        assert_eq!(r.maps.len(), 1, "notes: {:?}", r.notes);
+        let m = &r.maps[0].map;
+        let position: std::collections::HashMap<_, _> =
+            m.keyframes.iter().enumerate().map(|(p, k)| (k.image_id, p)).collect();
+        m.graph.image_pairs().filter(|(a, b, n)| *n > 0 && position[a].abs_diff(position[b]) > recent).count()
+    };
+    let (with, without) = (far_pairs(5), far_pairs(0));
+    assert_eq!(without, 0, "only recent keyframes are matched when revisits are off");
+    assert!(with > 0, "no keyframe matched one it saw 30 frames before");
+}

@@ -33,6 +33,10 @@ use colslam_geometry::{Mat3, Rigid3, Vec2, Vec3};
 use colslam_image::Image;
 use serde_json::{Value, json};
 
+// Shared with the other layer benchmarks, which import them from here.
+use super::workspace_root;
+pub(crate) use super::{data_dir, median};
+
 /// Dataset the benchmark runs on.
 const DATASET: &str = "tum_fr1_rpy_sub";
 /// Keypoint counts timed.
@@ -72,17 +76,6 @@ pub struct Args {
     pub rounds: usize,
 }
 
-/// Median of a sample (NaN when empty).
-pub(crate) fn median(v: &[f64]) -> f64 {
-    let mut s: Vec<f64> = v.iter().copied().filter(|x| x.is_finite()).collect();
-    if s.is_empty() {
-        return f64::NAN;
-    }
-    s.sort_by(f64::total_cmp);
-    let n = s.len();
-    if n % 2 == 1 { s[n / 2] } else { 0.5 * (s[n / 2 - 1] + s[n / 2]) }
-}
-
 /// Best of `repeats` timings of `f`, in ms, and the last result.
 fn best_ms<T>(repeats: usize, mut f: impl FnMut() -> Result<T>) -> Result<(f64, T)> {
     let mut best = f64::INFINITY;
@@ -114,31 +107,6 @@ pub(crate) fn machine() -> Value {
         .map(|t| t.split_whitespace().take(3).collect::<Vec<_>>().join(" "))
         .unwrap_or_default();
     json!({ "nproc": nproc, "cpu_model": cpu, "loadavg": load })
-}
-
-/// The workspace root as compiled in (fallback for relative paths).
-fn workspace_root() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("../..")
-}
-
-/// The datasets folder: `COLSLAM_DATA`, else `../shared/datasets` relative
-/// to the current directory, else beside the workspace.
-pub(crate) fn data_dir() -> Result<PathBuf> {
-    if let Some(d) = std::env::var_os("COLSLAM_DATA") {
-        let d = PathBuf::from(d);
-        if d.is_dir() {
-            return Ok(d);
-        }
-        bail!("COLSLAM_DATA={} is not a folder", d.display());
-    }
-    let candidates = [PathBuf::from("../shared/datasets"), workspace_root().join("../shared/datasets")];
-    candidates.iter().find(|d| d.is_dir()).cloned().ok_or_else(|| {
-        anyhow!(
-            "dataset folder not found (looked in {} and {}); set COLSLAM_DATA",
-            candidates[0].display(),
-            candidates[1].display()
-        )
-    })
 }
 
 /// The peer venv's Python interpreter: `COLSLAM_PYTHON`, else

@@ -198,14 +198,8 @@ pub struct SummaryRow {
 
 /// Median of the present values (mean of the two middle ones for an even count).
 pub fn median(values: impl IntoIterator<Item = Option<f64>>) -> Option<f64> {
-    let mut v: Vec<f64> = values.into_iter().flatten().filter(|x| x.is_finite()).collect();
-    if v.is_empty() {
-        return None;
-    }
-    v.sort_by(f64::total_cmp);
-    let n = v.len();
-    // n >= 1 here, so n / 2 and (n - 1) / 2 are valid indices.
-    Some(0.5 * (v[(n - 1) / 2] + v[n / 2]))
+    let v: Vec<f64> = values.into_iter().flatten().collect();
+    Some(crate::bench::median(&v)).filter(|m| m.is_finite())
 }
 
 /// Groups rows by (sequence, system, setting) in first-seen order and takes medians.
@@ -446,6 +440,85 @@ pub struct RunInfo {
     pub peers: Vec<String>,
 }
 
+/// The `--feature-options` comparison: ORB + NN, XFeat + NN and XFeat +
+/// LighterGlue on the same sequences (the paper's Table 2 columns).
+#[derive(Debug, Clone, Serialize)]
+pub struct FeatureOptions {
+    /// Sequences compared.
+    pub sequences: Vec<String>,
+    /// (label, setting of its rows) per configuration; setting "" is the
+    /// default run.
+    pub configurations: Vec<(String, String)>,
+    /// `--max-frames` of every configuration, if limited.
+    pub max_frames: Option<usize>,
+    /// `--num-features` of every configuration, if limited (default 2000).
+    pub keypoints: Option<usize>,
+    /// The table: one summary row per sequence and configuration, `system`
+    /// replaced by the configuration label.
+    pub rows: Vec<SummaryRow>,
+}
+
+/// The rows of the feature-options table, sequence by sequence, in
+/// configuration order; a configuration without runs is a "not run" row.
+pub fn feature_option_rows(fo: &FeatureOptions, summary: &[SummaryRow]) -> Vec<SummaryRow> {
+    let mut out = Vec::new();
+    for seq in &fo.sequences {
+        for (label, setting) in &fo.configurations {
+            let found = summary.iter().find(|r| &r.sequence == seq && r.system == "colslam" && &r.setting == setting);
+            let mut row = match found {
+                Some(r) => r.clone(),
+                None => {
+                    let mut r = summarise(&[RunRow::new(seq, label, setting, 1, String::new())]).remove(0);
+                    r.status = Status::NotRun;
+                    r.reason = Some("no run of this configuration".into());
+                    r
+                }
+            };
+            row.system = label.clone();
+            out.push(row);
+        }
+    }
+    out
+}
+
+/// The Markdown table of the feature options.
+fn feature_options_table(fo: &FeatureOptions) -> String {
+    let mut t = String::new();
+    t.push_str("| sequence | configuration | status | runs ok | localised | ATE all (cm) | ATE KF (cm) | ms/frame | init (s) | reg. ms/frame | CPU (s) | peak RSS (MiB) | KF | 3D points | reproj (px) |\n");
+    t.push_str("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n");
+    for s in &fo.rows {
+        let loc = match (s.localized, s.frames, s.localized_pct) {
+            (Some(l), Some(n), Some(p)) => format!("{l:.0}/{n:.0} ({p:.1} %)"),
+            _ => "-".into(),
+        };
+        let status = match (&s.reason, s.status) {
+            (Some(r), Status::Failed | Status::NotRun) => format!("{}: {}", s.status.label(), r.replace('|', "/")),
+            _ => s.status.label().to_string(),
+        };
+        let _ = writeln!(
+            t,
+            "| {} | {} | {} | {}/{} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} |",
+            s.sequence,
+            s.system,
+            status,
+            s.ok,
+            s.runs,
+            loc,
+            cm(s.ate_rmse_m),
+            cm(s.ate_kf_rmse_m),
+            f(s.ms_per_frame, 0),
+            f(s.init_s, 2),
+            f(s.registration_ms_per_frame, 1),
+            f(s.cpu_s, 1),
+            f(s.peak_rss_mib, 0),
+            f(s.keyframes, 0),
+            f(s.points, 0),
+            f(s.mean_reprojection_error_px, 3),
+        );
+    }
+    t
+}
+
 /// The whole report.
 #[derive(Debug, Clone, Serialize)]
 pub struct SuiteReport {
@@ -455,6 +528,8 @@ pub struct SuiteReport {
     pub summary: Vec<SummaryRow>,
     /// Every run.
     pub runs: Vec<RunRow>,
+    /// The `--feature-options` table, when asked for.
+    pub feature_options: Option<FeatureOptions>,
     /// Figures measured earlier (not this run).
     pub measured_earlier: Vec<Reference>,
     /// The paper's figures.
@@ -496,6 +571,23 @@ pub fn markdown(r: &SuiteReport) -> String {
                 reason.replace('|', "/")
             );
         }
+    }
+    if let Some(fo) = &r.feature_options {
+        s.push_str("\n## Feature options (the paper's Table 2 columns)\n\n");
+        let mut limits = Vec::new();
+        if let Some(n) = fo.max_frames {
+            limits.push(format!("the first {n} frames"));
+        }
+        if let Some(n) = fo.keypoints {
+            limits.push(format!("{n} keypoints per frame"));
+        }
+        let limits =
+            if limits.is_empty() { "all frames, 2000 keypoints per frame".to_string() } else { limits.join(", ") };
+        let _ = writeln!(
+            s,
+            "colslam with `--features orb --matcher nn` (the default), `--features xfeat --matcher nn` and `--features xfeat --matcher lighterglue`, each on {limits}.\n"
+        );
+        s.push_str(&feature_options_table(fo));
     }
     s.push_str("\n## Peers\n\n");
     if i.peers.is_empty() {
@@ -555,6 +647,20 @@ mod tests {
         assert_eq!(sum[0].status, Status::LowRegistration);
         assert!((sum[0].ate_rmse_m.unwrap() - 0.03).abs() < 1e-12);
         assert_eq!(sum[1].status, Status::NotRun);
+        let mut fo = FeatureOptions {
+            sequences: vec!["s".into()],
+            configurations: vec![
+                ("ORB+NN".into(), String::new()),
+                ("XFeat+LighterGlue".into(), "XFeat+LighterGlue".into()),
+            ],
+            max_frames: Some(40),
+            keypoints: None,
+            rows: Vec::new(),
+        };
+        fo.rows = feature_option_rows(&fo, &sum);
+        assert_eq!(fo.rows.len(), 2);
+        assert_eq!((fo.rows[0].system.as_str(), fo.rows[0].runs), ("ORB+NN", 3));
+        assert_eq!((fo.rows[1].system.as_str(), fo.rows[1].status), ("XFeat+LighterGlue", Status::NotRun));
         let report = SuiteReport {
             info: RunInfo {
                 command: "colslam bench".into(),
@@ -567,8 +673,9 @@ mod tests {
                 load_end: "1".into(),
                 peers: vec![],
             },
-            summary: sum,
+            summary: sum.clone(),
             runs: vec![c],
+            feature_options: Some(fo),
             measured_earlier: MEASURED_EARLIER.to_vec(),
             paper: PAPER.to_vec(),
         };
@@ -576,5 +683,8 @@ mod tests {
         assert!(md.contains("| s | colslam | FAILED (<90 % localised) | 1/3 |"), "{md}");
         assert!(md.contains("panic (exit 101)"));
         assert!(md.contains("10.93") && md.contains("2.25") && md.contains("not this run"));
+        assert!(md.contains("## Feature options") && md.contains("the first 40 frames"), "{md}");
+        assert!(md.contains("| s | ORB+NN | FAILED (<90 % localised) | 1/3 |"), "{md}");
+        assert!(md.contains("| s | XFeat+LighterGlue | not run: no run of this configuration |"), "{md}");
     }
 }

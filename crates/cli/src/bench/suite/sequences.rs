@@ -106,18 +106,17 @@ impl Sequence {
     }
 }
 
-/// The datasets folder: `--data`, else `COLSLAM_DATA`, else the first of
-/// `datasets` and `../shared/datasets` that exists (relative to the current
-/// directory), else `datasets`.
+/// The datasets folder: `--data`, else the shared lookup
+/// ([`crate::bench::data_dir`]), else `datasets` (whose sequences then show
+/// as not found).
 pub fn data_dir(arg: Option<&Path>) -> PathBuf {
     if let Some(d) = arg {
         return d.to_path_buf();
     }
-    if let Some(d) = std::env::var_os("COLSLAM_DATA") {
-        return PathBuf::from(d);
-    }
-    let candidates = [PathBuf::from("datasets"), PathBuf::from("../shared/datasets")];
-    candidates.iter().find(|c| c.is_dir()).cloned().unwrap_or_else(|| PathBuf::from("datasets"))
+    crate::bench::data_dir().unwrap_or_else(|e| {
+        tracing::warn!("{e:#}");
+        PathBuf::from("datasets")
+    })
 }
 
 /// Parses `WxH`.

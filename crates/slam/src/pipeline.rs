@@ -27,6 +27,10 @@ const MAX_ORPHANS: usize = 500;
 /// initial pair.
 const MAX_HISTORY: usize = 120;
 
+/// After a failed initialisation the window is thinned (to span more time)
+/// until it spans this many initialisation windows; then it slides.
+const MAX_INIT_SPAN_WINDOWS: usize = 4;
+
 /// Flow lines sent per frame event (a subsample of the matches).
 const MAX_FLOW_LINES: usize = 300;
 
@@ -267,14 +271,26 @@ impl Slam {
                 "initialisation failed on frames {}..={}{}",
                 window[0].index,
                 window[n - 1].index,
-                if at_end { " (end of input)" } else { "; sliding the window" }
+                if at_end { " (end of input)" } else { "; widening or sliding the window" }
             );
             tracing::warn!("{note}");
             self.notes.push(note);
-            let keep = window.len() / 2;
-            let mut window = window;
-            let rest = window.split_off(n - keep);
-            self.add_orphans(window);
+            // Too little motion in the window (a slow camera): thin it to
+            // every other frame, so the next attempt spans twice the time
+            // with the same number of frames. Once it spans
+            // MAX_INIT_SPAN_WINDOWS windows, the frames are the problem
+            // (blur, a cut, no texture): keep the newest half and move on.
+            let span = window[n - 1].index.saturating_sub(window[0].index);
+            let (rest, dropped): (Vec<FrameData>, Vec<FrameData>) =
+                if span < MAX_INIT_SPAN_WINDOWS * self.opts.init_frames {
+                    let (odd, even): (Vec<_>, Vec<_>) = window.into_iter().enumerate().partition(|(k, _)| k % 2 == 1);
+                    (odd.into_iter().map(|(_, d)| d).collect(), even.into_iter().map(|(_, d)| d).collect())
+                } else {
+                    let mut window = window;
+                    let rest = window.split_off(n - n / 2);
+                    (rest, window)
+                };
+            self.add_orphans(dropped);
             self.state = State::Initializing { window: rest };
             return Ok(());
         };

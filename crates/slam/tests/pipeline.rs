@@ -214,3 +214,22 @@ fn a_camera_coming_back_matches_the_keyframes_it_saw_before() {
     assert_eq!(without, 0, "only recent keyframes are matched when revisits are off");
     assert!(with > 0, "no keyframe matched one it saw 30 frames before");
 }
+
+#[test]
+fn a_slow_camera_widens_the_initialisation_window() {
+    // The default path over 300 frames: too little motion within the first
+    // 20 frames for an initial pair, so the window must span more time.
+    let opts = small_synth(300, 11);
+    let seq = SyntheticSequence::new(&opts).expect("sequence");
+    let frames = frames_of(&seq, opts.frames, opts.fps);
+    let r = run(&frames, seq.camera(), SlamOptions::default(), EventSink::none());
+    assert!(r.notes.iter().any(|n| n.contains("initialisation failed on frames 0..=19")), "notes: {:?}", r.notes);
+    assert_eq!(r.maps.len(), 1, "notes: {:?}", r.notes);
+    let localized = r.maps[0].poses.len();
+    assert!(localized >= 297, "only {localized} of 300 frames localised; notes: {:?}", r.notes);
+    let ate = evaluate(&gt_trajectory(&seq, opts.frames, opts.fps), &est_trajectory(&r), &EvalOptions::default())
+        .expect("evaluate");
+    let size = seq.scene().room().size();
+    let diagonal = (size[0].powi(2) + size[1].powi(2) + size[2].powi(2)).sqrt();
+    assert!(ate.ate_rmse < 5e-4 * diagonal, "ATE {} m vs scene diagonal {} m", ate.ate_rmse, diagonal);
+}

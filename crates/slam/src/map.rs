@@ -180,8 +180,6 @@ fn ransac_options(max_error: f64, seed: u64) -> RansacOptions {
 pub const KEYFRAME_TWO_VIEW_TRIALS: usize = 500;
 /// RANSAC trials of the two-view geometry of initial pair candidates.
 pub const INIT_TWO_VIEW_TRIALS: usize = 2000;
-/// Candidate second images tried per first image during initialisation.
-const INIT_MAX_SECOND_CANDIDATES: usize = 8;
 
 /// Two-view geometry between two frames' matched keypoints (`query` side
 /// first), with at most `max_trials` RANSAC trials per model.
@@ -237,9 +235,11 @@ impl MapState {
                 (0..n).filter(|&j| j != first && count(first, j) >= opts.init_min_inliers).collect();
             // Video: the frames with the most matches are the nearest, with
             // the least parallax; among those matched well enough, try the
-            // farthest in time first.
+            // farthest in time first, and every one of them: in a photo
+            // sequence with wide baselines (Strecha castle-P19) the far
+            // frames share no view, and raw match counts (which the ratio
+            // test leaves high among thousands of keypoints) do not tell.
             seconds.sort_by(|&a, &b| b.abs_diff(first).cmp(&a.abs_diff(first)).then(a.cmp(&b)));
-            seconds.truncate(INIT_MAX_SECOND_CANDIDATES);
             for second in seconds {
                 let (i, j) = if first < second { (first, second) } else { (second, first) };
                 let Some(matches) = pair_matches.get(&(i, j)) else { continue };

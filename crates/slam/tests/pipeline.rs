@@ -233,3 +233,19 @@ fn a_slow_camera_widens_the_initialisation_window() {
     let diagonal = (size[0].powi(2) + size[1].powi(2) + size[2].powi(2)).sqrt();
     assert!(ate.ate_rmse < 5e-4 * diagonal, "ATE {} m vs scene diagonal {} m", ate.ate_rmse, diagonal);
 }
+
+#[test]
+fn wide_baseline_photos_initialise_from_overlapping_pairs() {
+    // Strecha castle-P19: 19 photos around a courtyard; the frames far from
+    // the first image share no view with it, so the initial pair must be
+    // found among the nearer ones (all 8 farthest candidates fail).
+    let Some(dir) = colslam_testutil::dataset("strecha_castle_P19") else { return };
+    let camera = colslam_camera::file::read_camera_file(&dir.join("camera.yaml")).expect("camera file");
+    let source = colslam_io::open_source(&dir, &colslam_io::SourceOptions::default()).expect("source");
+    let frames: Vec<Frame> = source.map(|f| f.expect("frame")).collect();
+    assert_eq!(frames.len(), 19);
+    let r = run(&frames, &camera, SlamOptions::default(), EventSink::none());
+    assert!(!r.maps.is_empty(), "no map; notes: {:?}", r.notes);
+    let localized = r.maps[0].poses.len();
+    assert!(localized >= 18, "only {localized} of 19 photos localised; notes: {:?}", r.notes);
+}

@@ -324,8 +324,8 @@ impl Slam {
             self.emit_keyframe(id);
         }
         self.emit_map(true);
-        let known: std::collections::HashSet<usize> = before.iter().map(|d| d.index).collect();
-        before.extend(self.history.iter().filter(|d| d.index < first_index && !known.contains(&d.index)).cloned());
+        // `track_backward` drops the frames both lists hold.
+        before.extend(self.history.iter().filter(|d| d.index < first_index).cloned());
         self.track_backward(before)?;
         for data in later {
             self.track(data)?;
@@ -338,9 +338,9 @@ impl Slam {
     /// COLMAP's incremental mapper has no direction at all). The reference
     /// is always the keyframe nearest in time (keyframes are ordered by
     /// distance in time during the pass, nearest last), and keyframes found
-    /// on the way are added; the pass ends at the first
-    /// frame or when tracking is lost, and the frames not reached are kept
-    /// for relocalisation at the end.
+    /// on the way are added; the pass ends at the first frame or when
+    /// tracking is lost, and the frames not reached are kept for
+    /// relocalisation at the end.
     fn track_backward(&mut self, mut frames: Vec<FrameData>) -> Result<(), SlamError> {
         frames.sort_by_key(|d| std::cmp::Reverse(d.index));
         frames.dedup_by_key(|d| d.index);

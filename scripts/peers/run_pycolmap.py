@@ -1,8 +1,9 @@
 #!/usr/bin/env python3
 """Peer run for `colslam bench --peers`: pycolmap 4.2 on a TUM-layout sequence.
 
-SIFT extraction with the sequence's own intrinsics (one shared, fixed camera),
-sequential matching, then COLMAP's incremental mapper or the global mapper
+SIFT extraction with the sequence's own intrinsics (one shared, fixed camera;
+keypoints of a distorted camera are undistorted to its pinhole image before
+matching, see `undistort_keypoints_in_database`), sequential matching, then COLMAP's incremental mapper or the global mapper
 (GLOMAP, `pycolmap.global_mapping`). Writes the largest model under
 OUT/model/ and its camera trajectory (world_from_cam, image name -> timestamp
 through rgb.txt) as OUT/trajectory.tum, plus OUT/peer.json with counts.
@@ -18,14 +19,12 @@ import argparse
 import json
 import os
 import shutil
+import sqlite3
 import sys
 import time
 
+import numpy as np
 import pycolmap
-
-# COLMAP rejects cameras whose extra (distortion) parameters exceed this
-# bound after bundle adjustment (default 1.0); TUM fr1 has k3 = 1.1633.
-MAX_EXTRA_PARAM = 100.0
 
 
 def read_camera_yaml(path):
@@ -46,6 +45,45 @@ def read_camera_yaml(path):
     if any(dist[:4]):
         return w, h, "OPENCV", [fx, fy, cx, cy] + dist[:4]
     return w, h, "PINHOLE", [fx, fy, cx, cy]
+
+
+def undistort_keypoints_in_database(db_path, model, params):
+    """Rewrites every keypoint in the database to the ideal pinhole image of
+    the same camera and turns the camera into a PINHOLE one.
+
+    pycolmap 4.2.1's incremental mapper triangulates its initial pair with a
+    default-constructed triangulator whose bogus-camera bound on the extra
+    parameters is 1.0, so a camera with k3 = 1.1633 (TUM fr1) can never
+    initialise, whatever the options say. Features stay those SIFT found on
+    the original images; only their coordinates move, as COLMAP's
+    undistortion would move them. Returns the number of keypoints rewritten.
+    """
+    camera = pycolmap.Camera(model=model, width=1, height=1, params=params)
+    fx, fy, cx, cy = params[:4]
+    con = sqlite3.connect(db_path)
+    try:
+        rows = con.execute("SELECT image_id, rows, cols, data FROM keypoints").fetchall()
+        total = 0
+        for image_id, n, cols, blob in rows:
+            if n == 0:
+                continue
+            kp = np.frombuffer(blob, dtype=np.float32).reshape(n, cols).copy()
+            # COLMAP's keypoints put the centre of the top-left pixel at
+            # (0.5, 0.5); cam_from_img and the pinhole below share it.
+            xy = camera.cam_from_img(kp[:, :2].astype(np.float64))
+            kp[:, 0] = (fx * xy[:, 0] + cx).astype(np.float32)
+            kp[:, 1] = (fy * xy[:, 1] + cy).astype(np.float32)
+            con.execute("UPDATE keypoints SET data = ? WHERE image_id = ?", (kp.tobytes(), image_id))
+            total += n
+        pinhole = np.array([fx, fy, cx, cy], dtype=np.float64)
+        con.execute(
+            "UPDATE cameras SET model = ?, params = ?",
+            (int(pycolmap.CameraModelId.PINHOLE), pinhole.tobytes()),
+        )
+        con.commit()
+    finally:
+        con.close()
+    return total
 
 
 def read_rgb_list(path):
@@ -96,6 +134,8 @@ def main():
         db, a.seq, image_names=names, camera_mode=pycolmap.CameraMode.SINGLE,
         reader_options=reader, extraction_options=extraction, device=pycolmap.Device.cpu,
     )
+    if model != "PINHOLE":
+        undistort_keypoints_in_database(db, model, params)
     t1 = time.time()
     pycolmap.match_sequential(db, device=pycolmap.Device.cpu)
     t2 = time.time()
@@ -105,7 +145,6 @@ def main():
     if a.mapper == "incremental":
         opts = pycolmap.IncrementalPipelineOptions()
         opts.num_threads = a.threads
-        opts.mapper.max_extra_param = MAX_EXTRA_PARAM
         # The intrinsics are known: keep them fixed, as colslam does.
         opts.ba_refine_focal_length = False
         opts.ba_refine_principal_point = False
@@ -114,6 +153,10 @@ def main():
     else:
         opts = pycolmap.GlobalPipelineOptions()
         opts.num_threads = a.threads
+        ba = opts.mapper.bundle_adjustment
+        ba.refine_focal_length = False
+        ba.refine_principal_point = False
+        ba.refine_extra_params = False
         recs = pycolmap.global_mapping(db, a.seq, sparse, opts)
     t3 = time.time()
     if not recs:

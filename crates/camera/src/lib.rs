@@ -304,6 +304,14 @@ impl Camera {
         self.intrinsics().img_from_cam_with_jacobians(p)
     }
 
+    /// Projection with the Jacobian w.r.t. the camera-frame point only (for
+    /// bundle adjustment with constant intrinsics; the same pixel and
+    /// `d_point` as [`Camera::img_from_cam_with_jacobians`]). `None` if
+    /// `z <= 0` or anything is non-finite.
+    pub fn img_from_cam_with_point_jacobian(&self, p: &Vec3) -> Option<(Vec2, nalgebra::Matrix2x3<f64>)> {
+        self.intrinsics().img_from_cam_with_point_jacobian(p)
+    }
+
     /// The camera for images resized by `factor` (e.g. 0.5 for half size),
     /// in COLMAP's pixel convention (pixel centres at `i + 0.5`), as COLMAP's
     /// `Camera::Rescale`: the new size is `round(factor * size)` (at least

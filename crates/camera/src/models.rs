@@ -306,7 +306,10 @@ impl Intrinsics {
     }
 
     /// Projection with Jacobians w.r.t. the point and all parameters.
-    pub(crate) fn img_from_cam_with_jacobians(&self, p: &Vec3) -> Option<Projection> {
+    /// Normalised coordinates, their distorted image, the pixel and d pixel /
+    /// d camera-frame point (no finiteness check).
+    #[inline]
+    fn project_point_jac(&self, p: &Vec3) -> Option<(Vec2, Vec2, Vec2, Matrix2x3<f64>)> {
         if !is_positive(p.z) {
             return None;
         }
@@ -317,7 +320,20 @@ impl Intrinsics {
         // d(u, v)/d(x, y, z).
         let d_uv_d_p = Matrix2x3::new(iz, 0.0, -uv.x * iz, 0.0, iz, -uv.y * iz);
         let k = Matrix2::new(self.fx, 0.0, 0.0, self.fy);
-        let d_point = k * j_uv * d_uv_d_p;
+        Some((uv, d, pixel, k * j_uv * d_uv_d_p))
+    }
+
+    /// Pixel and d pixel / d camera-frame point only: what bundle adjustment
+    /// needs for a camera whose parameters are held constant.
+    #[inline]
+    pub(crate) fn img_from_cam_with_point_jacobian(&self, p: &Vec3) -> Option<(Vec2, Matrix2x3<f64>)> {
+        let (_, _, pixel, d_point) = self.project_point_jac(p)?;
+        let finite = pixel.iter().chain(d_point.iter()).all(|v| v.is_finite());
+        finite.then_some((pixel, d_point))
+    }
+
+    pub(crate) fn img_from_cam_with_jacobians(&self, p: &Vec3) -> Option<Projection> {
+        let (uv, d, pixel, d_point) = self.project_point_jac(p)?;
 
         let mut d_params = SMatrix::<f64, 2, MAX_PARAMS>::zeros();
         let fi = self.model.focal_length_idxs();

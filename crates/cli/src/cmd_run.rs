@@ -22,7 +22,7 @@ pub struct PipelineArgs {
     /// Matcher.
     #[arg(long, default_value = "nn")]
     pub matcher: String,
-    /// Keypoints per frame; 0 scales them with the image area (2000 at 640x480, at most 8000).
+    /// Keypoints per frame; 0 scales them with the image area (1000 at 640x480, 2300 at 1241x376, at most 8000).
     #[arg(long, default_value_t = SlamOptions::default().num_features)]
     pub num_features: usize,
     /// Use every s-th frame.
@@ -198,6 +198,24 @@ pub struct RunHooks<'a> {
     pub after_frame: Option<Hook<'a, Slam>>,
 }
 
+/// Frames decoded and extracted ahead of the mapper (bounds the memory the
+/// reader thread can hold: a VGA frame with its features is about 1.2 MB).
+const PREFETCH_FRAMES: usize = 4;
+
+/// A frame with its features, from the reader thread.
+struct ExtractedFrame {
+    frame: colslam_io::Frame,
+    data: Result<colslam_slam::frontend::FrameData, colslam_slam::SlamError>,
+    decode: std::time::Duration,
+    features: std::time::Duration,
+}
+
+/// What the reader thread hands to the mapper.
+enum Extracted {
+    Frame(Box<ExtractedFrame>),
+    Skipped { error: String, decode: std::time::Duration },
+}
+
 /// Runs the pipeline on `args.input` into `args.output`.
 pub fn run_pipeline(args: &RunArgs, quiet: bool, events: EventSink) -> Result<RunOutcome> {
     run_pipeline_with(args, quiet, events, RunHooks::default())
@@ -232,33 +250,63 @@ pub fn run_pipeline_with(
     }
     tracing::info!("{}", source.describe());
     let pb = crate::logging::progress_bar(source.len_hint().unwrap_or(0) as u64, quiet, "frames");
-    loop {
-        if hooks.cancel.as_ref().is_some_and(|c| c.load(Ordering::SeqCst)) {
-            cancelled_at = Some(processed);
-            break;
-        }
-        let t = Instant::now();
-        let next = source.next();
-        slam.timings_mut().add(Stage::Decode, t.elapsed());
-        let Some(frame) = next else { break };
-        let frame = match frame {
-            Ok(f) => f,
-            Err(e) => {
-                tracing::warn!("skipping a frame: {e}");
-                continue;
+    // Decoding and feature extraction run one frame ahead of the mapping on
+    // a thread of their own (a bounded queue), so the second core has work
+    // while the mapper runs its serial parts; features are the same as on
+    // one thread, so the output is too.
+    let frontend = slam.frontend();
+    std::thread::scope(|scope| -> Result<()> {
+        let (tx, rx) = std::sync::mpsc::sync_channel::<Extracted>(PREFETCH_FRAMES);
+        let producer = scope.spawn(move || {
+            loop {
+                let t = Instant::now();
+                let Some(next) = source.next() else { break };
+                let decode = t.elapsed();
+                let item = match next {
+                    Ok(frame) => {
+                        let t = Instant::now();
+                        let data = frontend.process(&frame);
+                        Extracted::Frame(Box::new(ExtractedFrame { frame, data, decode, features: t.elapsed() }))
+                    }
+                    Err(e) => Extracted::Skipped { error: e.to_string(), decode },
+                };
+                // The receiver is gone once the run stops early.
+                if tx.send(item).is_err() {
+                    break;
+                }
             }
-        };
-        if let Some(f) = hooks.before_frame.as_mut() {
-            f(&frame);
+        });
+        for item in rx.iter() {
+            if hooks.cancel.as_ref().is_some_and(|c| c.load(Ordering::SeqCst)) {
+                cancelled_at = Some(processed);
+                break;
+            }
+            let ExtractedFrame { frame, data, decode, features } = match item {
+                Extracted::Frame(f) => *f,
+                Extracted::Skipped { error, decode } => {
+                    slam.timings_mut().add(Stage::Decode, decode);
+                    tracing::warn!("skipping a frame: {error}");
+                    continue;
+                }
+            };
+            slam.timings_mut().add(Stage::Decode, decode);
+            slam.timings_mut().add(Stage::Features, features);
+            if let Some(f) = hooks.before_frame.as_mut() {
+                f(&frame);
+            }
+            let context = || format!("processing frame {} ({})", frame.index, frame.name);
+            slam.process_features(data.with_context(context)?).with_context(context)?;
+            processed += 1;
+            if let Some(f) = hooks.after_frame.as_mut() {
+                f(&slam);
+            }
+            pb.inc(1);
+            pb.set_message(format!("{} kf", slam.num_keyframes()));
         }
-        slam.process(&frame).with_context(|| format!("processing frame {} ({})", frame.index, frame.name))?;
-        processed += 1;
-        if let Some(f) = hooks.after_frame.as_mut() {
-            f(&slam);
-        }
-        pb.inc(1);
-        pb.set_message(format!("{} kf", slam.num_keyframes()));
-    }
+        drop(rx);
+        producer.join().map_err(|_| anyhow::anyhow!("the frame reader thread panicked"))?;
+        Ok(())
+    })?;
     pb.finish_and_clear();
     let mut result = slam.finish()?;
     let t = Instant::now();

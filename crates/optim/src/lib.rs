@@ -44,5 +44,7 @@ pub mod synthetic;
 pub use loss::{LossFunction, LossValue};
 pub use options::{BaError, BaOptions, BaReport, BaTimings, BehindCamera, LinearSolverType, Termination};
 pub use problem::{BaCamera, BaPoint, BaPose, IntrinsicsRefinement, Observation, Problem};
-pub use residual::{ResidualJacobians, pose_plus, reprojection_jacobians, reprojection_residual};
+pub use residual::{
+    ResidualJacobians, pose_plus, reprojection_jacobians, reprojection_jacobians_with, reprojection_residual,
+};
 pub use solver::BundleAdjuster;

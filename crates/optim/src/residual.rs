@@ -58,17 +58,37 @@ pub fn reprojection_jacobians(
     point: &Vec3,
     observed: &Vec2,
 ) -> Option<ResidualJacobians> {
-    let rx = cam_from_world.rotation * point;
+    reprojection_jacobians_with(camera, cam_from_world, point, observed, true)
+}
+
+/// [`reprojection_jacobians`]; without `with_params` the intrinsics
+/// Jacobian is left zero and not computed (a constant camera: most of the
+/// cost of a distorted model's projection is in its parameter derivatives).
+pub fn reprojection_jacobians_with(
+    camera: &Camera,
+    cam_from_world: &Rigid3,
+    point: &Vec3,
+    observed: &Vec2,
+    with_params: bool,
+) -> Option<ResidualJacobians> {
+    let r = cam_from_world.rotation.to_rotation_matrix().into_inner();
+    let rx = r * point;
     let p_cam = rx + cam_from_world.translation;
-    let proj = project_with_jacobians(camera, &p_cam)?;
-    let residual = proj.pixel - observed;
+    let (pixel, d_proj, d_params) = if with_params {
+        let proj = project_with_jacobians(camera, &p_cam)?;
+        (proj.pixel, proj.d_point, proj.d_params)
+    } else {
+        let (pixel, d_proj) = camera.img_from_cam_with_point_jacobian(&p_cam)?;
+        (pixel, d_proj, SMatrix::zeros())
+    };
+    let residual = pixel - observed;
     let mut d_pose = SMatrix::<f64, 2, POSE_DIM>::zeros();
     // -[Rx]x: d(exp([w]x) R X)/dw at w = 0.
     let neg_skew = nalgebra::Matrix3::new(0.0, rx.z, -rx.y, -rx.z, 0.0, rx.x, rx.y, -rx.x, 0.0);
-    d_pose.fixed_view_mut::<2, 3>(0, 0).copy_from(&(proj.d_point * neg_skew));
-    d_pose.fixed_view_mut::<2, 3>(0, 3).copy_from(&proj.d_point);
-    let d_point = proj.d_point * cam_from_world.rotation.to_rotation_matrix().into_inner();
-    Some(ResidualJacobians { residual, d_pose, d_point, d_params: proj.d_params })
+    d_pose.fixed_view_mut::<2, 3>(0, 0).copy_from(&(d_proj * neg_skew));
+    d_pose.fixed_view_mut::<2, 3>(0, 3).copy_from(&d_proj);
+    let d_point = d_proj * r;
+    Some(ResidualJacobians { residual, d_pose, d_point, d_params })
 }
 
 /// The reprojection residual only; `None` when the point does not project.
@@ -170,6 +190,25 @@ pub(crate) mod tests {
                 }
             }
         }
+    }
+
+    #[test]
+    fn constant_camera_path_gives_the_same_pose_and_point_jacobians() {
+        let pose = Rigid3::new(Quat::from_euler_angles(-0.2, 0.1, 0.4), Vec3::new(-0.3, 0.2, 0.1));
+        let obs = Vec2::new(310.0, 250.0);
+        for model in CameraModelId::ALL {
+            let cam = sample_camera(model);
+            for x in [Vec3::new(0.4, 0.3, 3.0), Vec3::new(-0.8, -0.5, 2.0)] {
+                let full = reprojection_jacobians_with(&cam, &pose, &x, &obs, true).expect("projects");
+                let fixed = reprojection_jacobians_with(&cam, &pose, &x, &obs, false).expect("projects");
+                assert!((full.residual - fixed.residual).norm() < 1e-12, "{model}");
+                assert!((full.d_pose - fixed.d_pose).norm() < 1e-9 * (1.0 + full.d_pose.norm()), "{model}");
+                assert!((full.d_point - fixed.d_point).norm() < 1e-9 * (1.0 + full.d_point.norm()), "{model}");
+                assert_eq!(fixed.d_params.norm(), 0.0, "{model}: no intrinsics Jacobian on the constant path");
+            }
+        }
+        let cam = sample_camera(CameraModelId::FullOpenCv);
+        assert!(reprojection_jacobians_with(&cam, &pose, &Vec3::new(0.0, 0.0, -1.0), &obs, false).is_none());
     }
 
     #[test]

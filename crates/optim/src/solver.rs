@@ -17,7 +17,7 @@ use crate::layout::{BlockKind, Layout, MAX_TASK_ROWS, POSE_GROUP};
 use crate::linear::{ReducedSolver, SparsePattern};
 use crate::loss::Corrector;
 use crate::problem::Problem;
-use crate::residual::{POSE_DIM, pose_plus, reprojection_jacobians, reprojection_residual};
+use crate::residual::{POSE_DIM, pose_plus, reprojection_jacobians_with, reprojection_residual};
 use crate::small::{add_j_x, add_jt_j, add_jt_j_fixed, add_jt_r, spd_inverse3};
 use crate::{BaError, BaOptions, BaReport, BaTimings, LinearSolverType, LossFunction, Termination};
 use colslam_camera::Camera;
@@ -353,11 +353,12 @@ fn linearize(
             let mut sum = 0.0;
             for (k, o) in obs.iter().enumerate() {
                 let ob = &problem.observations[o.obs];
-                let rj = reprojection_jacobians(
+                let rj = reprojection_jacobians_with(
                     &state.cameras[o.camera],
                     &state.poses[o.pose],
                     &state.points[o.point],
                     &ob.pixel,
+                    o.cam_block.is_some(),
                 )
                 .map(|mut rj| {
                     // Whitening by the measurement's inverse standard deviation.

@@ -13,6 +13,32 @@ use colslam_estimators::triangulation::{TriangulationOptions, triangulate_multiv
 use colslam_geometry::{Rigid3, Vec2, Vec3};
 use colslam_scene::{ImageId, Point3DId, Reconstruction, TrackElement};
 use std::collections::{BTreeSet, HashSet};
+use std::hash::{BuildHasherDefault, Hasher};
+
+/// A multiply-rotate hasher (the Fx hash of rustc) for the integer-id sets
+/// on the track-merging path, where SipHash's DoS resistance buys nothing
+/// and costs most of the lookup.
+#[derive(Default, Clone, Copy)]
+struct FxHasher(u64);
+
+impl Hasher for FxHasher {
+    fn finish(&self) -> u64 {
+        self.0
+    }
+    fn write(&mut self, bytes: &[u8]) {
+        for &b in bytes {
+            self.write_u64(u64::from(b));
+        }
+    }
+    fn write_u32(&mut self, v: u32) {
+        self.write_u64(u64::from(v));
+    }
+    fn write_u64(&mut self, v: u64) {
+        self.0 = (self.0.rotate_left(5) ^ v).wrapping_mul(0x51_7c_c1_b7_27_22_0a_95);
+    }
+}
+
+type FastHash = BuildHasherDefault<FxHasher>;
 
 /// Colour given to new points; the pipeline recolours points from the
 /// keyframes' pixels.
@@ -359,7 +385,8 @@ pub fn complete_tracks(
         // Breadth-first from the track, as COLMAP's CompleteTrack: only
         // observations that were added are expanded further, up to
         // `complete_max_transitivity` hops from the original track.
-        let mut in_track: HashSet<ImageId> = p.track.iter().map(|e| e.image_id).collect();
+        // Tracks hold tens of elements: a vector beats hashing here.
+        let mut in_track: Vec<ImageId> = p.track.iter().map(|e| e.image_id).collect();
         let mut frontier: Vec<TrackElement> = p.track.clone();
         for _hop in 0..opts.complete_max_transitivity {
             let mut next = Vec::new();
@@ -368,14 +395,18 @@ pub fn complete_tracks(
                     if in_track.contains(&n.image_id) {
                         continue;
                     }
-                    let cand = TrackElement::new(n.image_id, n.point2d_idx);
-                    let Some(v) = view_of(rec, cand) else { continue };
-                    if v.point3d.is_some() {
+                    // Cheap tests first: a registered image whose keypoint
+                    // has no point yet (no undistortion needed for that).
+                    let Some(img) = rec.image(n.image_id) else { continue };
+                    if !img.registered
+                        || img.points2d.get(n.point2d_idx as usize).is_none_or(|k| k.point3d_id.is_some())
+                    {
                         continue;
                     }
+                    let cand = TrackElement::new(n.image_id, n.point2d_idx);
                     if reprojection_error_px(rec, cand, &xyz) <= opts.complete_max_reproj_error_px {
                         rec.add_observation(pid, cand)?;
-                        in_track.insert(n.image_id);
+                        in_track.push(n.image_id);
                         next.push(cand);
                         added += 1;
                     }
@@ -402,13 +433,22 @@ pub fn merge_tracks(
 ) -> Result<usize, SfmError> {
     opts.validate()?;
     let mut merges = 0;
-    let mut tried: HashSet<(Point3DId, Point3DId)> = HashSet::new();
+    let mut tried: HashSet<(Point3DId, Point3DId), FastHash> = HashSet::default();
     let mut queue: Vec<Point3DId> = points.to_vec();
     while let Some(pid) = queue.pop() {
-        let Some(p) = rec.point3d(pid) else { continue };
-        let track = p.track.clone();
-        'elements: for el in track {
-            for c in graph.correspondences(el.image_id, el.point2d_idx).to_vec() {
+        let Some(a) = rec.point3d(pid) else { continue };
+        // Images of this track: a merged track may hold one keypoint per
+        // image only. Built once per point (the track only changes by a
+        // merge, after which the merged point is queued afresh).
+        let images_a: Vec<ImageId> = a.track.iter().map(|e| e.image_id).collect();
+        let mut partner = None;
+        'elements: for el in &a.track {
+            for c in graph.correspondences(el.image_id, el.point2d_idx) {
+                if images_a.contains(&c.image_id) {
+                    // The same image as an element of this track: its
+                    // point (if any) cannot merge, or is this point.
+                    continue;
+                }
                 let Some(img) = rec.image(c.image_id) else { continue };
                 if !img.registered {
                     continue;
@@ -419,9 +459,7 @@ pub fn merge_tracks(
                 if other == pid || !tried.insert((pid.min(other), pid.max(other))) {
                     continue;
                 }
-                let (Some(a), Some(b)) = (rec.point3d(pid), rec.point3d(other)) else { continue };
-                // A merged track may hold one keypoint per image only.
-                let images_a: HashSet<ImageId> = a.track.iter().map(|e| e.image_id).collect();
+                let Some(b) = rec.point3d(other) else { continue };
                 if b.track.iter().any(|e| images_a.contains(&e.image_id)) {
                     continue;
                 }
@@ -433,12 +471,15 @@ pub fn merge_tracks(
                     .chain(&b.track)
                     .all(|e| reprojection_error_px(rec, *e, &merged) <= opts.merge_max_reproj_error_px);
                 if ok {
-                    let new_id = rec.merge_points3d(pid, other)?;
-                    merges += 1;
-                    queue.push(new_id);
+                    partner = Some(other);
                     break 'elements;
                 }
             }
+        }
+        if let Some(other) = partner {
+            let new_id = rec.merge_points3d(pid, other)?;
+            merges += 1;
+            queue.push(new_id);
         }
     }
     Ok(merges)

@@ -86,7 +86,9 @@ enum State {
 /// [`Slam::finish`].
 pub struct Slam {
     opts: SlamOptions,
-    frontend: Frontend,
+    /// Shared so that a caller can extract features on another thread
+    /// ([`Slam::frontend`], [`Slam::process_features`]).
+    frontend: std::sync::Arc<Frontend>,
     events: EventSink,
     state: State,
     map: Option<MapState>,
@@ -131,7 +133,7 @@ impl Slam {
         events: EventSink,
     ) -> Result<Self, SlamError> {
         opts.validate()?;
-        let frontend = Frontend::new(&opts, camera_opencv)?;
+        let frontend = std::sync::Arc::new(Frontend::new(&opts, camera_opencv)?);
         Ok(Self {
             opts,
             frontend,
@@ -222,6 +224,20 @@ impl Slam {
             let frontend = &self.frontend;
             self.timings.time(Stage::Features, || frontend.process(frame))?
         };
+        self.process_features(data)
+    }
+
+    /// The frontend, for extracting features ([`Frontend::process`]) on
+    /// another thread while this one maps: feed the results in frame order
+    /// to [`Slam::process_features`] (and their time to
+    /// [`Slam::timings_mut`]). Gives the same result as [`Slam::process`].
+    pub fn frontend(&self) -> std::sync::Arc<Frontend> {
+        std::sync::Arc::clone(&self.frontend)
+    }
+
+    /// Processes a frame whose features were extracted with
+    /// [`Slam::frontend`]. Frames must come in order.
+    pub fn process_features(&mut self, data: FrameData) -> Result<(), SlamError> {
         self.frames.push(FrameInfo { index: data.index, timestamp: data.timestamp, name: data.name.clone() });
         if self.history.len() >= MAX_HISTORY {
             self.history.pop_front();
@@ -499,7 +515,7 @@ impl Slam {
         self.prev = None;
         let mut global = None;
         if map.needs_global_ba(&self.opts) {
-            global = Some(map.global_ba(&self.opts, &mut self.timings)?);
+            global = Some(map.periodic_global_ba(&self.opts, &mut self.timings)?);
         }
         self.emit_keyframe(image_id);
         self.log_keyframe_ate();

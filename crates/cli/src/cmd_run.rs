@@ -64,6 +64,12 @@ pub struct PipelineArgs {
     /// Below this many matches to the last keyframe a keyframe is forced.
     #[arg(long, default_value_t = SlamOptions::default().force_keyframe_matches)]
     pub force_keyframe_matches: usize,
+    /// Keyframes in a local bundle adjustment (the new one and its most connected).
+    #[arg(long, default_value_t = SlamOptions::default().local_ba_images)]
+    pub local_ba_images: usize,
+    /// Global bundle adjustment once the registered images or the points grew by this factor.
+    #[arg(long, default_value_t = SlamOptions::default().global_ba_growth)]
+    pub global_ba_growth: f64,
     /// At the end, add every localised frame to the model and bundle adjust
     /// all of them together.
     #[arg(long)]
@@ -103,6 +109,8 @@ impl PipelineArgs {
             match_keyframes: self.match_keyframes,
             match_revisited: self.match_revisited,
             force_keyframe_matches: self.force_keyframe_matches,
+            local_ba_images: self.local_ba_images,
+            global_ba_growth: self.global_ba_growth,
             reject_pure_rotation: !self.allow_pure_rotation,
             refine_all_frames: self.refine_all_frames,
             weight_by_level: self.weight_by_level,

@@ -76,6 +76,24 @@ pub fn most_connected_images(rec: &Reconstruction, image_id: ImageId, max_images
     v.into_iter().take(max_images).map(|(id, _)| id).collect()
 }
 
+/// The intrinsics refined when `refine_intrinsics` is set: the focal
+/// length(s) and the distortion terms the calibration uses. A coefficient
+/// that is exactly zero beside non-zero ones is a term the calibration left
+/// out (a 5-coefficient OpenCV calibration stored as FULL_OPENCV has k4 = k5
+/// = k6 = 0); freeing it lets BA trade it against the others, which on TUM
+/// fr1 drove k1 to 26. A camera without any distortion value (a guess)
+/// refines every term of its model. The principal point stays fixed, as in
+/// COLMAP.
+pub fn refined_intrinsics(camera: &colslam_camera::Camera) -> IntrinsicsRefinement {
+    let model = camera.model;
+    let mut idx: Vec<usize> = model.focal_length_idxs().to_vec();
+    let extras = model.extra_params_idxs();
+    let used: Vec<usize> =
+        extras.iter().copied().filter(|&i| camera.params.get(i).is_some_and(|v| *v != 0.0)).collect();
+    idx.extend(if used.is_empty() { extras.to_vec() } else { used });
+    IntrinsicsRefinement::Params(idx)
+}
+
 /// Runs bundle adjustment on the part of `rec` named by `config` and writes
 /// the result back.
 pub fn adjust_bundle(
@@ -115,7 +133,7 @@ pub fn adjust_bundle(
         if let std::collections::btree_map::Entry::Vacant(e) = cam_index.entry(img.camera_id) {
             let cam = rec.camera(img.camera_id).ok_or(colslam_scene::SceneError::UnknownCamera(img.camera_id))?;
             let refine =
-                if config.refine_intrinsics { IntrinsicsRefinement::FromOptions } else { IntrinsicsRefinement::Fixed };
+                if config.refine_intrinsics { refined_intrinsics(&cam.camera) } else { IntrinsicsRefinement::Fixed };
             e.insert(problem.add_camera(cam.camera.clone(), refine));
         }
         let pose = if variable { BaPose::variable(img.cam_from_world) } else { BaPose::fixed(img.cam_from_world) };
@@ -254,4 +272,32 @@ pub fn adjust_local(
         refine_intrinsics,
     };
     adjust_bundle(rec, &config, opts)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use colslam_camera::{Camera, CameraModelId};
+
+    #[test]
+    fn refinement_keeps_unused_distortion_terms_fixed() {
+        // TUM fr1 (plumb_bob) stored as FULL_OPENCV: k4..k6 are not part of it.
+        let tum = Camera {
+            model: CameraModelId::FullOpenCv,
+            width: 640,
+            height: 480,
+            params: vec![517.3, 516.5, 318.6, 255.3, 0.2624, -0.9531, -0.0054, 0.0026, 1.1633, 0.0, 0.0, 0.0],
+        };
+        assert_eq!(refined_intrinsics(&tum), IntrinsicsRefinement::Params(vec![0, 1, 4, 5, 6, 7, 8]));
+        // A guessed camera has no distortion value yet: every term is free.
+        let guess = Camera::simple_pinhole(640, 480, 600.0, 320.0, 240.0);
+        assert_eq!(refined_intrinsics(&guess), IntrinsicsRefinement::Params(vec![0]));
+        let radial = Camera {
+            model: CameraModelId::SimpleRadial,
+            width: 640,
+            height: 480,
+            params: vec![600.0, 320.0, 240.0, 0.0],
+        };
+        assert_eq!(refined_intrinsics(&radial), IntrinsicsRefinement::Params(vec![0, 3]));
+    }
 }

@@ -79,6 +79,14 @@ fn run_and_export_a_model() {
         serde_json::from_str(&std::fs::read_to_string(out.join("report.json")).expect("report")).expect("json");
     assert_eq!(report["frames"].as_u64(), Some(40));
     assert!(report["timings_s"]["features"].as_f64().is_some());
+    // Deterministic through the binary too, where features come from the
+    // reader thread and the mapper runs on a pool of another size.
+    let again = dir.path().join("again");
+    ok(&["-q", "run", seq_s, "-o", again.to_str().expect("utf-8"), "--threads", "1"]);
+    for f in ["cameras.bin", "images.bin", "points3D.bin", "trajectory.tum", "keyframes.tum", "points.ply"] {
+        let (a, b) = (std::fs::read(out.join(f)).expect("first"), std::fs::read(again.join(f)).expect("second"));
+        assert!(a == b, "{f} differs between two runs of the same input");
+    }
     let info = ok(&["info", out_s]);
     assert!(info.contains("points3D"), "{info}");
     let txt = dir.path().join("txt");

@@ -64,6 +64,10 @@ pub struct PipelineArgs {
     /// Below this many matches to the last keyframe a keyframe is forced.
     #[arg(long, default_value_t = SlamOptions::default().force_keyframe_matches)]
     pub force_keyframe_matches: usize,
+    /// Rolling-shutter readout time of the camera in seconds (first row to last; 0: global
+    /// shutter). Observations are moved to their frame's middle-row time after mapping.
+    #[arg(long, value_name = "SECONDS", default_value_t = SlamOptions::default().rolling_shutter_readout)]
+    pub rolling_shutter: f64,
     /// Keyframes in a local bundle adjustment (the new one and its most connected).
     #[arg(long, default_value_t = SlamOptions::default().local_ba_images)]
     pub local_ba_images: usize,
@@ -110,6 +114,7 @@ impl PipelineArgs {
             match_revisited: self.match_revisited,
             force_keyframe_matches: self.force_keyframe_matches,
             local_ba_images: self.local_ba_images,
+            rolling_shutter_readout: self.rolling_shutter,
             global_ba_growth: self.global_ba_growth,
             reject_pure_rotation: !self.allow_pure_rotation,
             refine_all_frames: self.refine_all_frames,

@@ -15,7 +15,7 @@ use crate::error::SceneError;
 use crate::ids::{CameraId, ImageId, Point3DId};
 use crate::projection;
 use crate::types::{Camera, Image, Point3D, TrackElement, UNKNOWN_ERROR};
-use colslam_geometry::{Quat, Rigid3, Sim3, Vec3};
+use colslam_geometry::{Quat, Rigid3, Sim3, Vec2, Vec3};
 use std::collections::{BTreeMap, BTreeSet};
 
 /// The reprojection error COLMAP records for an observation whose point lies
@@ -204,6 +204,20 @@ impl Reconstruction {
     /// Mutable pose of an image.
     pub fn cam_from_world_mut(&mut self, id: ImageId) -> Option<&mut Rigid3> {
         self.images.get_mut(&id).map(|i| &mut i.cam_from_world)
+    }
+
+    /// Moves keypoint `point2d_idx` of an image to `xy` (a measurement
+    /// correction such as rolling-shutter compensation); its 3D point link
+    /// stays.
+    pub fn set_point2d_xy(&mut self, id: ImageId, point2d_idx: u32, xy: Vec2) -> Result<(), SceneError> {
+        let img = self.images.get_mut(&id).ok_or(SceneError::UnknownImage(id))?;
+        let p = img.points2d.get_mut(point2d_idx as usize).ok_or_else(|| SceneError::BadObservation {
+            image: id,
+            point2d_idx,
+            what: "no such keypoint".into(),
+        })?;
+        p.xy = xy;
+        Ok(())
     }
 
     /// Sets the pose of an image.

@@ -15,6 +15,7 @@ pub mod merge;
 pub mod options;
 pub mod output;
 pub mod pipeline;
+pub mod rolling_shutter;
 pub mod timing;
 
 pub use error::SlamError;

@@ -36,8 +36,11 @@ pub struct Keyframe {
 pub struct RecordObs {
     /// Keypoint index in the frame.
     pub frame_kp: u32,
-    /// Its normalised coordinates.
+    /// Its normalised coordinates (rolling-shutter compensated when that is
+    /// on).
     pub normalized: Vec2,
+    /// Its normalised coordinates as measured.
+    pub measured: Vec2,
     /// The keyframe it matched.
     pub keyframe: ImageId,
     /// The keyframe keypoint it matched.
@@ -69,7 +72,13 @@ impl FrameRecord {
     pub fn add_matches(&mut self, data: &FrameData, kf: ImageId, matches: &[Match]) {
         for m in matches {
             if let Some(n) = data.normalized.get(m.query as usize) {
-                self.obs.push(RecordObs { frame_kp: m.query, normalized: *n, keyframe: kf, keyframe_kp: m.train });
+                self.obs.push(RecordObs {
+                    frame_kp: m.query,
+                    normalized: *n,
+                    measured: *n,
+                    keyframe: kf,
+                    keyframe_kp: m.train,
+                });
             }
         }
     }
@@ -143,6 +152,20 @@ pub const LOCAL_BA_FUNCTION_TOLERANCE: f64 = 1e-3;
 /// The same for the global BAs run while the map grows; the final global BA
 /// converges fully (1e-6). On TUM fr1_rpy: 5.6 s -> 2.0 s, ATE unchanged.
 pub const PERIODIC_GLOBAL_BA_FUNCTION_TOLERANCE: f64 = 1e-3;
+
+/// Rolling-shutter compensation takes a frame's angular velocity from its
+/// neighbours only when they are at most this far apart in time (seconds).
+pub const ROLLING_SHUTTER_MAX_GAP_S: f64 = 1.0;
+
+/// Rounds of rolling-shutter compensation at most: each re-estimates the
+/// angular velocities from the poses the previous one gave (the first
+/// come from the uncompensated map). On TUM fr1/rpy at 30 ms the ATE went
+/// 2.18 (none), 1.38, 1.33, 1.06, 0.98, 0.96 cm over rounds 1-5.
+pub const ROLLING_SHUTTER_MAX_ROUNDS: usize = 4;
+
+/// Compensation stops earlier once the velocities change by less than this
+/// share of their RMS between two rounds.
+pub const ROLLING_SHUTTER_CONVERGED: f64 = 0.02;
 
 /// Scale between ORB pyramid levels: a keypoint found at octave `o` is
 /// located to about `ORB_LEVEL_SCALE^o` pixels (ORB-SLAM's level sigma).
@@ -646,10 +669,73 @@ impl MapState {
         found.into_iter().take(max).map(|(_, k)| k).collect()
     }
 
+    /// Rolling-shutter compensation ([`crate::rolling_shutter`]) with the
+    /// frames' angular velocities (by frame index, from a localisation):
+    /// every keyframe observation and every non-keyframe record is moved,
+    /// from its measured position, to its frame's middle-row time, then the
+    /// map is bundle adjusted globally to the periodic tolerance, with track
+    /// completion, merging and filtering. The caller localises the frames
+    /// again and ends with a converged global BA. Returns the number of
+    /// keyframe observations moved.
+    pub fn compensate_rolling_shutter(
+        &mut self,
+        velocities: &HashMap<usize, Vec3>,
+        opts: &SlamOptions,
+        timings: &mut StageTimings,
+    ) -> Result<usize, SfmError> {
+        let readout = opts.rolling_shutter_readout;
+        if readout == 0.0 || self.rec.num_registered_images() < 2 {
+            return Ok(0);
+        }
+        let camera = self.rec.camera(self.camera_id).ok_or(colslam_scene::SceneError::UnknownCamera(self.camera_id))?;
+        let camera = camera.camera.clone();
+        let mut moved = 0;
+        for kf in &self.keyframes {
+            let Some(w) = velocities.get(&kf.data.index) else { continue };
+            if !self.rec.image(kf.image_id).is_some_and(|i| i.registered) {
+                continue;
+            }
+            // From the keyframe's own measurements, so a second call does
+            // not compound corrections.
+            for (k, px) in kf.data.pixels.iter().enumerate() {
+                if let Some((fixed, _)) = crate::rolling_shutter::compensate(&camera, px, w, readout) {
+                    self.rec.set_point2d_xy(kf.image_id, k as u32, fixed)?;
+                    moved += 1;
+                }
+            }
+        }
+        for r in &mut self.records {
+            let Some(w) = velocities.get(&r.index) else { continue };
+            for o in &mut r.obs {
+                let px = camera.img_from_normalized(&o.measured);
+                if let Some((_, n)) = crate::rolling_shutter::compensate(&camera, &px, w, readout) {
+                    o.normalized = n;
+                }
+            }
+        }
+        tracing::debug!(
+            "map {}: rolling shutter ({:.1} ms readout): {moved} keyframe observations moved, {} frames with a velocity",
+            self.index,
+            1e3 * readout,
+            velocities.len()
+        );
+        // Track completion, merging and filtering in every round matter:
+        // corrected observations join tracks they did not fit before (BA
+        // alone each round: 1.36 cm instead of 0.98 cm on TUM fr1/rpy).
+        self.periodic_global_ba(opts, timings)?;
+        Ok(moved)
+    }
+
     /// Final global BA and filtering at the end of the run.
     pub fn finalize(&mut self, opts: &SlamOptions, timings: &mut StageTimings) -> Result<(), SfmError> {
         if self.rec.num_registered_images() >= 2 {
-            self.global_ba(opts, timings)?;
+            if opts.rolling_shutter_readout > 0.0 {
+                // Rolling-shutter compensation follows and ends with the
+                // converged global BA.
+                self.periodic_global_ba(opts, timings)?;
+            } else {
+                self.global_ba(opts, timings)?;
+            }
         }
         self.rec.update_point_errors()?;
         Ok(())

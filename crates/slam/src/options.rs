@@ -93,6 +93,12 @@ pub struct SlamOptions {
     /// registers every image); the model then holds every frame. Default
     /// false.
     pub refine_all_frames: bool,
+    /// Rolling-shutter readout time of the camera, seconds from the first
+    /// row to the last; 0 for a global shutter. When set, every observation
+    /// is moved to its frame's middle-row time after mapping (from the
+    /// frames' angular velocities), then the map is bundle adjusted and the
+    /// frames localised again ([`crate::rolling_shutter`]). Default 0.
+    pub rolling_shutter_readout: f64,
     /// Seed of every random choice (RANSAC). Default 0.
     pub seed: u64,
 }
@@ -127,6 +133,7 @@ impl Default for SlamOptions {
             weight_by_level: false,
             localize_all_frames: true,
             refine_all_frames: false,
+            rolling_shutter_readout: 0.0,
             seed: 0,
         }
     }
@@ -188,6 +195,10 @@ impl SlamOptions {
         }
         if !(self.init_min_tri_angle_deg >= 0.0 && self.init_min_tri_angle_deg < 90.0) {
             return Err(invalid("init-min-tri-angle", self.init_min_tri_angle_deg, "must lie in [0, 90)"));
+        }
+        let r = self.rolling_shutter_readout;
+        if !(r.is_finite() && (0.0..1.0).contains(&r)) {
+            return Err(invalid("rolling-shutter", r, "must be a readout time in seconds in [0, 1)"));
         }
         if self.local_ba_images < 2 {
             return Err(invalid("local-ba-images", self.local_ba_images, "must be at least 2"));

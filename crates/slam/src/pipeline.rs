@@ -532,6 +532,42 @@ impl Slam {
         Ok(true)
     }
 
+    /// Rolling-shutter compensation of a finished map in rounds
+    /// ([`MapState::compensate_rolling_shutter`]), each from the poses of the
+    /// previous localisation, until the angular velocities settle; returns the
+    /// final localisation.
+    fn compensate_rolling_shutter(
+        &mut self,
+        map: &mut MapState,
+        mut poses: Vec<FramePose>,
+        mut inliers: HashMap<usize, crate::map::FrameInliers>,
+    ) -> Result<(Vec<FramePose>, HashMap<usize, crate::map::FrameInliers>), SlamError> {
+        use crate::map::{ROLLING_SHUTTER_CONVERGED, ROLLING_SHUTTER_MAX_GAP_S, ROLLING_SHUTTER_MAX_ROUNDS};
+        let focal = self.focal();
+        let mut previous: Option<HashMap<usize, colslam_geometry::Vec3>> = None;
+        for round in 0..ROLLING_SHUTTER_MAX_ROUNDS {
+            let w = crate::rolling_shutter::angular_velocities(&poses, ROLLING_SHUTTER_MAX_GAP_S);
+            let change = previous.as_ref().map(|p| crate::rolling_shutter::relative_change(p, &w));
+            tracing::debug!("map {}: rolling-shutter round {round}, velocity change {change:?}", map.index);
+            if change.is_some_and(|c| c < ROLLING_SHUTTER_CONVERGED) {
+                break;
+            }
+            if map.compensate_rolling_shutter(&w, &self.opts, &mut self.timings)? == 0 {
+                break;
+            }
+            (poses, _, inliers) = map.localize_all(focal, &self.opts, &mut self.timings);
+            previous = Some(w);
+        }
+        if previous.is_some() {
+            // The rounds stop at the periodic tolerance; the map ends as
+            // converged as without compensation.
+            map.global_ba(&self.opts, &mut self.timings)?;
+            map.rec.update_point_errors()?;
+            (poses, _, inliers) = map.localize_all(focal, &self.opts, &mut self.timings);
+        }
+        Ok((poses, inliers))
+    }
+
     fn add_orphans(&mut self, frames: Vec<FrameData>) {
         for f in frames {
             if self.orphans.len() >= MAX_ORPHANS {
@@ -702,7 +738,10 @@ impl Slam {
                     }
                 }
             }
-            let (mut poses, _failed, inliers) = map.localize_all(focal, &self.opts, &mut self.timings);
+            let (mut poses, _failed, mut inliers) = map.localize_all(focal, &self.opts, &mut self.timings);
+            if self.opts.rolling_shutter_readout > 0.0 {
+                (poses, inliers) = self.compensate_rolling_shutter(&mut map, poses, inliers)?;
+            }
             if self.opts.refine_all_frames {
                 map.refine_with_all_frames(&mut poses, &inliers, &self.opts, &mut self.timings)?;
             }

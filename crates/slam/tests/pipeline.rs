@@ -256,3 +256,24 @@ fn wide_baseline_photos_initialise_from_overlapping_pairs() {
     let localized = r.maps[0].poses.len();
     assert!(localized >= 18, "only {localized} of 19 photos localised; notes: {:?}", r.notes);
 }
+
+#[test]
+fn rolling_shutter_compensation_brings_tum_rpy_under_1_5_cm() {
+    // TUM fr1/rpy: a Kinect v1 (rolling shutter, 30 Hz) turning fast. The
+    // issue's bar is 1.5 cm with ORB; without compensation the run is at
+    // 2.2 cm, like COLMAP's and GLOMAP's (docs/benchmarks.md).
+    let Some(dir) = colslam_testutil::dataset("tum_fr1_rpy_sub") else { return };
+    let camera = colslam_camera::file::read_camera_file(&dir.join("camera.yaml")).expect("camera file");
+    let source = colslam_io::open_source(&dir, &colslam_io::SourceOptions::default()).expect("source");
+    let frames: Vec<Frame> = source.map(|f| f.expect("frame")).collect();
+    assert_eq!(frames.len(), 200);
+    let gt = Trajectory::read_tum(&dir.join("groundtruth.txt")).expect("ground truth");
+    let opts = SlamOptions { rolling_shutter_readout: 1.0 / 30.0, ..SlamOptions::default() };
+    let r = run(&frames, &camera, opts, EventSink::none());
+    assert_eq!(r.maps.len(), 1, "notes: {:?}", r.notes);
+    let localized = r.maps[0].poses.len();
+    assert!(localized >= 198, "only {localized} of 200 frames localised");
+    let ate = evaluate(&gt, &est_trajectory(&r), &EvalOptions::default()).expect("evaluate");
+    assert!(ate.ate_rmse < 0.015, "ATE {} m", ate.ate_rmse);
+    r.maps[0].map.rec.check_consistency().expect("consistent model");
+}

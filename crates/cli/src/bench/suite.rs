@@ -251,6 +251,9 @@ fn run_colslam(ctx: &Ctx, seq: &Sequence, setting: &str, extra: &[String], run: 
     if let CameraSpec::Preset(p) = &seq.camera {
         cmd.args(["--preset", p]);
     }
+    if let Some(r) = seq.rolling_shutter {
+        cmd.args(["--rolling-shutter", &r.to_string()]);
+    }
     if let Some(t) = ctx.threads {
         cmd.args(["--threads", &t.to_string()]);
     }

@@ -24,6 +24,11 @@ pub const KITTI_VIDEO: &str = "test_kitti984.mp4";
 /// Camera preset of the KITTI clip (focal 984 px).
 pub const KITTI_PRESET: &str = "kitti-984";
 
+/// Rolling-shutter readout of the TUM fr1 camera (a Kinect v1 RGB sensor
+/// streaming 30 frames per second, read out row by row over one frame
+/// period): 1/30 s.
+pub const TUM_FR1_READOUT_S: f64 = 1.0 / 30.0;
+
 /// How the camera of a sequence is given to `colslam run`.
 #[derive(Debug, Clone, PartialEq)]
 pub enum CameraSpec {
@@ -49,6 +54,9 @@ pub struct Sequence {
     /// Given by the user (`--sequence`): run even when the input is missing,
     /// so that the run's own error shows as a failure row.
     pub user: bool,
+    /// Rolling-shutter readout time of its camera, seconds (`colslam run
+    /// --rolling-shutter`), when known.
+    pub rolling_shutter: Option<f64>,
 }
 
 impl Sequence {
@@ -63,6 +71,7 @@ impl Sequence {
             camera: CameraSpec::Auto,
             synth: None,
             user: false,
+            rolling_shutter: name.starts_with("tum_fr1").then_some(TUM_FR1_READOUT_S),
         }
     }
 
@@ -77,6 +86,7 @@ impl Sequence {
             camera: CameraSpec::Auto,
             synth: None,
             user: true,
+            rolling_shutter: None,
         }
     }
 
@@ -96,6 +106,7 @@ impl Sequence {
             camera: CameraSpec::Auto,
             synth: Some(o),
             user: false,
+            rolling_shutter: None,
         }
     }
 
@@ -152,6 +163,7 @@ pub fn suite_sequences(
         camera: CameraSpec::Preset(KITTI_PRESET.to_string()),
         synth: None,
         user: false,
+        rolling_shutter: None,
     });
     Ok(v)
 }

@@ -555,13 +555,19 @@ impl Slam {
             if map.compensate_rolling_shutter(&w, &self.opts, &mut self.timings)? == 0 {
                 break;
             }
-            (poses, _, inliers) = map.localize_all(focal, &self.opts, &mut self.timings);
+            if round + 1 < ROLLING_SHUTTER_MAX_ROUNDS {
+                // Poses for the next round's velocities (the last round's
+                // frames are localised after the final BA below).
+                (poses, _, inliers) = map.localize_all(focal, &self.opts, &mut self.timings);
+            }
             previous = Some(w);
         }
         if previous.is_some() {
-            // The rounds stop at the periodic tolerance; the map ends as
-            // converged as without compensation.
-            map.global_ba(&self.opts, &mut self.timings)?;
+            // The rounds stop at the periodic tolerance; a last global BA
+            // settles the map on the compensated observations.
+            let mut ba = colslam_sfm::bundle::BundleOptions::global();
+            ba.ba.function_tolerance = crate::map::ROLLING_SHUTTER_FINAL_TOLERANCE;
+            map.global_ba_with(&self.opts, &mut self.timings, &ba)?;
             map.rec.update_point_errors()?;
             (poses, _, inliers) = map.localize_all(focal, &self.opts, &mut self.timings);
         }

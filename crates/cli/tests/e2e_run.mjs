@@ -30,7 +30,7 @@ try {
   await page.fill('#input-path', cfg.input);
   await page.fill('#output-path', cfg.output);
   // The max-frames bound comes from the server's probe of the input.
-  await page.waitForFunction(() => document.getElementById('max-bound').dataset.bound === '40', null, { timeout: TIMEOUT_MS });
+  await page.waitForFunction((n) => document.getElementById('max-bound').dataset.bound === String(n), cfg.frames, { timeout: TIMEOUT_MS });
   await page.click('#run-btn');
   await page.waitForFunction(() => /Started/.test(document.getElementById('run-msg').textContent), null, { timeout: TIMEOUT_MS });
   const seen = new Set();

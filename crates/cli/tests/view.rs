@@ -72,15 +72,27 @@ fn get_json(url: &str, path: &str) -> Value {
 
 /// The small synthetic sequence (40 frames, 320 x 240) in `dir/seq`.
 fn synthetic(dir: &Path) -> PathBuf {
+    synthetic_frames(dir, 40)
+}
+
+/// A synthetic sequence of `frames` frames at 320x240.
+fn synthetic_frames(dir: &Path, frames: usize) -> PathBuf {
     let seq = dir.join("seq");
     let status = Command::new(BIN)
-        .args(["-q", "demo", "--generate-only", "--frames", "40", "--width", "320", "--height", "240", "-o"])
+        .args(["-q", "demo", "--generate-only", "--frames", &frames.to_string(), "--width", "320", "--height", "240"])
+        .arg("-o")
         .arg(&seq)
         .status()
         .expect("run demo");
     assert!(status.success(), "demo --generate-only failed");
     seq
 }
+
+/// Frames of the browser scenario: enough that the run lasts long enough
+/// (a few seconds) for the page's 30 ms polling to see keyframes change
+/// while it goes on; 40 frames took under a second once the pipeline got
+/// faster, and the page saw at most one keyframe.
+const BROWSER_RUN_FRAMES: usize = 200;
 
 #[test]
 fn view_serves_a_model_and_refuses_a_bad_folder() {
@@ -212,8 +224,12 @@ fn view_runs_the_pipeline_from_the_page_api() {
     assert!(std::fs::read(&ply).expect("ply").starts_with(b"ply"));
     // A second run, stopped right after it starts: it ends early, still
     // writes its outputs, and says so in the report.
+    // (A longer sequence, so that the stop cannot come after its last frame.)
+    let long_dir = dir.path().join("long");
+    std::fs::create_dir_all(&long_dir).expect("mkdir");
+    let long = synthetic_frames(&long_dir, BROWSER_RUN_FRAMES);
     let out2 = dir.path().join("out2");
-    let (status, body) = request(&url, "POST", "/api/run", Some(&serde_json::json!({"input": seq, "output": out2})));
+    let (status, body) = request(&url, "POST", "/api/run", Some(&serde_json::json!({"input": long, "output": out2})));
     assert_eq!(status, 200, "second run started: {body}");
     let (status, body) = request(&url, "POST", "/api/stop", Some(&serde_json::json!({})));
     assert_eq!(status, 200, "{body}");
@@ -224,7 +240,11 @@ fn view_runs_the_pipeline_from_the_page_api() {
     }
     let report: Value =
         serde_json::from_str(&std::fs::read_to_string(out2.join("report.json")).expect("report")).expect("json");
-    assert!(report["frames"].as_u64().is_some_and(|n| n < 40), "stopped early: {} frames", report["frames"]);
+    assert!(
+        report["frames"].as_u64().is_some_and(|n| n < BROWSER_RUN_FRAMES as u64),
+        "stopped early: {} frames",
+        report["frames"]
+    );
     assert!(report["notes"].to_string().contains("stopped on request"), "notes: {}", report["notes"]);
 }
 
@@ -254,11 +274,12 @@ fn browser_run_from_the_settings_panel() {
         return skip_or_fail("playwright-core is not installed in crates/viewer/e2e (npm ci)");
     }
     let dir = tempfile::tempdir().expect("tempdir");
-    let seq = synthetic(dir.path());
+    let seq = synthetic_frames(dir.path(), BROWSER_RUN_FRAMES);
     let out = dir.path().join("out");
     let (_child, url, _stdout) = spawn_viewer(&["-q".as_ref(), "view".as_ref(), "--port".as_ref(), "0".as_ref()]);
     let config = serde_json::json!({
         "url": format!("{url}/"),
+        "frames": BROWSER_RUN_FRAMES,
         "chromium": chromium,
         "playwright": format!("file://{}", playwright.display()),
         "input": seq,

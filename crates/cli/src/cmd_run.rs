@@ -263,8 +263,8 @@ pub fn run_pipeline_with(
     }
     tracing::info!("{}", source.describe());
     let pb = crate::logging::progress_bar(source.len_hint().unwrap_or(0) as u64, quiet, "frames");
-    // Decoding and feature extraction run one frame ahead of the mapping on
-    // a thread of their own (a bounded queue), so the second core has work
+    // Decoding and feature extraction run up to PREFETCH_FRAMES frames ahead
+    // of the mapping on a thread of their own, so the second core has work
     // while the mapper runs its serial parts; features are the same as on
     // one thread, so the output is too.
     let frontend = slam.frontend();

@@ -456,7 +456,9 @@ pub fn merge_tracks(
                 let Some(other) = img.points2d.get(c.point2d_idx as usize).and_then(|k| k.point3d_id) else {
                     continue;
                 };
-                if other == pid || !tried.insert((pid.min(other), pid.max(other))) {
+                // `other` is not `pid`: every keypoint of `pid` lies on an
+                // image of `images_a`, skipped above.
+                if !tried.insert((pid.min(other), pid.max(other))) {
                     continue;
                 }
                 let Some(b) = rec.point3d(other) else { continue };

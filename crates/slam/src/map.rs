@@ -157,21 +157,10 @@ pub const PERIODIC_GLOBAL_BA_FUNCTION_TOLERANCE: f64 = 1e-3;
 /// neighbours only when they are at most this far apart in time (seconds).
 pub const ROLLING_SHUTTER_MAX_GAP_S: f64 = 1.0;
 
-/// Rounds of rolling-shutter compensation at most: each re-estimates the
-/// angular velocities from the poses the previous one gave (the first come
-/// from the uncompensated map). Measured on TUM fr1/rpy at 1/30 s (ATE, cm,
-/// seeds 0 / 1 / 2): one round 1.07 / 1.22 / 0.94, two 1.08 / 1.09, three
-/// 1.11 / 1.02, each round costing a global BA; one is kept.
-pub const ROLLING_SHUTTER_MAX_ROUNDS: usize = 1;
-
 /// Function tolerance of the global BA that ends the compensation (it starts
 /// from observations moved by pixels, so at Ceres' 1e-6 it ran 34
 /// iterations): 1e-4 gave the same ATE (1.09 against 1.07 cm) 0.85 s sooner.
 pub const ROLLING_SHUTTER_FINAL_TOLERANCE: f64 = 1e-4;
-
-/// Compensation stops earlier once the velocities change by less than this
-/// share of their RMS between two rounds.
-pub const ROLLING_SHUTTER_CONVERGED: f64 = 0.02;
 
 /// Scale between ORB pyramid levels: a keypoint found at octave `o` is
 /// located to about `ORB_LEVEL_SCALE^o` pixels (ORB-SLAM's level sigma).
@@ -422,12 +411,23 @@ impl MapState {
         opts: &SlamOptions,
         timings: &mut StageTimings,
     ) -> Result<colslam_optim::BaReport, SfmError> {
+        self.global_ba_with_tolerance(opts, timings, PERIODIC_GLOBAL_BA_FUNCTION_TOLERANCE)
+    }
+
+    /// [`Self::global_ba`] stopped once an iteration lowers the cost by less
+    /// than `function_tolerance` of it.
+    pub fn global_ba_with_tolerance(
+        &mut self,
+        opts: &SlamOptions,
+        timings: &mut StageTimings,
+        function_tolerance: f64,
+    ) -> Result<colslam_optim::BaReport, SfmError> {
         let mut ba = BundleOptions::global();
-        ba.ba.function_tolerance = PERIODIC_GLOBAL_BA_FUNCTION_TOLERANCE;
+        ba.ba.function_tolerance = function_tolerance;
         self.global_ba_with(opts, timings, &ba)
     }
 
-    pub(crate) fn global_ba_with(
+    fn global_ba_with(
         &mut self,
         opts: &SlamOptions,
         timings: &mut StageTimings,
@@ -725,9 +725,9 @@ impl MapState {
             1e3 * readout,
             velocities.len()
         );
-        // Track completion, merging and filtering in every round matter:
-        // corrected observations join tracks they did not fit before (BA
-        // alone each round: 1.36 cm instead of 0.98 cm on TUM fr1/rpy).
+        // Track completion, merging and filtering matter here: corrected
+        // observations join tracks they did not fit before (BA alone after
+        // compensating: 1.36 cm instead of 0.98 cm on TUM fr1/rpy).
         self.periodic_global_ba(opts, timings)?;
         Ok(moved)
     }

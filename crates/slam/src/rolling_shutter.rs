@@ -50,20 +50,6 @@ pub fn angular_velocities(poses: &[FramePose], max_gap: f64) -> HashMap<usize, V
     out
 }
 
-/// RMS of the change between two velocity sets over the frames both have,
-/// relative to the RMS of the newer one (0 when either is empty).
-pub fn relative_change(old: &HashMap<usize, Vec3>, new: &HashMap<usize, Vec3>) -> f64 {
-    let (mut diff, mut norm, mut n) = (0.0, 0.0, 0usize);
-    for (k, w) in new {
-        if let Some(o) = old.get(k) {
-            diff += (w - o).norm_squared();
-            norm += w.norm_squared();
-            n += 1;
-        }
-    }
-    if n == 0 || norm == 0.0 { 0.0 } else { (diff / norm).sqrt() }
-}
-
 /// The pixel and normalised coordinates an observation at `px` would have
 /// had at the frame's middle-row time, for a camera turning at `w` with
 /// readout time `readout` (seconds). `None` when the pixel cannot be

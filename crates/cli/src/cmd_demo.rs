@@ -40,7 +40,7 @@ pub struct DemoArgs {
     #[arg(long)]
     pub generate_only: bool,
     #[command(flatten)]
-    pub pipeline: crate::cmd_run::PipelineArgs,
+    pub options: colslam_slam::run::RunOptions,
 }
 
 impl DemoArgs {
@@ -74,6 +74,8 @@ impl DemoArgs {
 /// Runs `demo`: generate the sequence, run the pipeline on it, evaluate
 /// against the exact ground truth.
 pub fn run(args: &DemoArgs, quiet: bool) -> Result<()> {
+    // Options are checked before the sequence is rendered.
+    args.options.validate()?;
     let opts = args.options();
     let pb = crate::logging::progress_bar(opts.frames as u64, quiet, "rendering");
     let progress = |done: usize, _total: usize| pb.set_position(done as u64);
@@ -84,19 +86,15 @@ pub fn run(args: &DemoArgs, quiet: bool) -> Result<()> {
     if args.generate_only {
         return Ok(());
     }
-    let run_args = crate::cmd_run::RunArgs {
-        input: args.output.clone(),
-        output: args.output.join("output"),
-        camera: None,
-        preset: None,
-        focal: None,
+    let run_args = colslam_slam::run::RunConfig {
         gt: Some(args.output.join("groundtruth.txt")),
-        pipeline: args.pipeline.clone(),
+        options: args.options.clone(),
+        ..colslam_slam::run::RunConfig::new(&args.output, args.output.join("output"))
     };
-    let outcome = crate::cmd_run::run_pipeline(&run_args, quiet, colslam_slam::EventSink::none())?;
-    println!("{}", crate::cmd_run::summary(&outcome.report));
-    println!("outputs in {}", run_args.output.display());
-    if let Some(e) = &outcome.eval {
+    let outcome =
+        crate::cmd_run::run_with_progress(&run_args, quiet, colslam_slam::EventSink::none(), Default::default())?;
+    crate::cmd_run::print_outcome(&run_args, &outcome);
+    if let Some(e) = &outcome.report.eval {
         println!(
             "ATE RMSE {:.4} m over {} frames = {:.4} % of the scene diagonal ({:.2} m); plot: {}",
             e.ate_rmse,

@@ -6,10 +6,9 @@
 //! `run --view --view-exit` the process exits when the run ends instead (for
 //! scripts and tests).
 
-use crate::cmd_run::{PipelineArgs, RunArgs};
 use crate::viewer_bridge::{RunShared, ViewController, run_live};
 use anyhow::{Context, Result};
-use clap::Parser;
+use colslam_slam::run::{RunConfig, RunOptions};
 use colslam_viewer::{DEFAULT_PORT, Viewer, ViewerOptions};
 use std::io::Write;
 use std::net::IpAddr;
@@ -67,25 +66,6 @@ pub struct RunViewArgs {
     pub view_exit: bool,
 }
 
-/// `run` with its viewer flags.
-#[derive(Debug, clap::Args)]
-pub struct RunCommand {
-    #[command(flatten)]
-    pub run: RunArgs,
-    #[command(flatten)]
-    pub view: RunViewArgs,
-}
-
-/// The pipeline defaults of the command line, for runs started from the page.
-fn default_pipeline_args() -> Result<PipelineArgs> {
-    #[derive(Parser)]
-    struct Defaults {
-        #[command(flatten)]
-        p: PipelineArgs,
-    }
-    Ok(Defaults::try_parse_from(["colslam"]).context("pipeline defaults")?.p)
-}
-
 /// Prints the URL as the first stdout line, flushed (scripts read it).
 fn announce(viewer: &Viewer) -> Result<()> {
     let mut out = std::io::stdout().lock();
@@ -105,7 +85,7 @@ pub fn run(args: &ViewArgs) -> Result<()> {
     };
     let viewer = Viewer::start(args.server.options())?;
     let shared = Arc::new(RunShared::default());
-    viewer.set_controller(Arc::new(ViewController::new(viewer.handle(), shared, default_pipeline_args()?)));
+    viewer.set_controller(Arc::new(ViewController::new(viewer.handle(), shared, RunOptions::default())));
     if let (Some(rec), Some(dir)) = (&model, &args.model) {
         viewer.set_reconstruction_from(rec, &dir.display().to_string());
     }
@@ -119,26 +99,18 @@ pub fn run(args: &ViewArgs) -> Result<()> {
     Ok(())
 }
 
-/// Runs `run`, with the viewer when `--view` is given.
-pub fn run_command(args: &RunCommand, quiet: bool) -> Result<()> {
-    if !args.view.view {
-        return crate::cmd_run::run(&args.run, quiet);
-    }
-    let v = &args.view;
+/// Runs `config` with the viewer following it (`run --view`).
+pub fn run_followed(config: &RunConfig, v: &RunViewArgs, quiet: bool) -> Result<()> {
     let viewer = Viewer::start(ViewerOptions { bind: v.bind, port: v.port })?;
     let shared = Arc::new(RunShared::default());
-    let base = args.run.pipeline.clone();
+    let base = config.options.clone();
     viewer.set_controller(Arc::new(ViewController::new(viewer.handle(), Arc::clone(&shared), base)));
     announce(&viewer)?;
     // The page's Run button is refused while this run goes on (the flag of
     // a fresh `shared` is free; run_live releases it).
     shared.try_begin();
-    let outcome = run_live(&args.run, quiet, &viewer.handle(), &shared, std::time::Instant::now())?;
-    println!("{}", crate::cmd_run::summary(&outcome.report));
-    println!("outputs in {}", args.run.output.display());
-    if let Some(e) = &outcome.eval {
-        println!("{e}");
-    }
+    let outcome = run_live(config, quiet, &viewer.handle(), &shared, std::time::Instant::now())?;
+    crate::cmd_run::print_outcome(config, &outcome);
     if v.view_exit {
         std::io::stdout().flush()?;
         std::thread::sleep(VIEW_EXIT_LINGER);

@@ -4,7 +4,6 @@
 //! `eval`, `bench`, `view`, `export`, `info`. Only this binary uses anyhow;
 //! the library crates return typed errors.
 
-mod bench;
 mod cmd_demo;
 mod cmd_eval;
 mod cmd_export;
@@ -38,11 +37,11 @@ enum Command {
     /// truth) and run on it.
     Demo(cmd_demo::DemoArgs),
     /// Run the SLAM pipeline on a video or an image sequence.
-    Run(cmd_view::RunCommand),
+    Run(cmd_run::RunCommand),
     /// Evaluate an estimated trajectory against ground truth (ATE, RPE, plot).
     Eval(cmd_eval::EvalArgs),
     /// Benchmarks (features, estimators, BA, whole sequences).
-    Bench(bench::BenchArgs),
+    Bench(colslam_bench::BenchArgs),
     /// Browser viewer for a reconstruction or a live run.
     View(cmd_view::ViewArgs),
     /// Convert or export a COLMAP model (binary, text, PLY, TUM trajectory).
@@ -70,8 +69,8 @@ fn dispatch(cli: Cli) -> Result<()> {
         Command::Eval(a) => cmd_eval::run(&a),
         Command::Export(a) => cmd_export::run(&a),
         Command::Info(a) => cmd_info::run(&a),
-        Command::Run(a) => cmd_view::run_command(&a, quiet),
-        Command::Bench(a) => bench::run(&a, quiet),
+        Command::Run(a) => cmd_run::run(&a, quiet),
+        Command::Bench(a) => colslam_bench::run(&a, quiet),
         Command::View(a) => cmd_view::run(&a),
     }
 }

@@ -16,12 +16,13 @@
 //! model, read back from the output folder when the run ends, replaces the
 //! live map with full tracks.
 
-use crate::cmd_run::{PipelineArgs, RunArgs, RunHooks, RunOutcome, run_pipeline_with};
+use crate::cmd_run::run_with_progress;
 use anyhow::Result;
 use colslam_camera::Camera;
 use colslam_image::Image;
 use colslam_scene::Reconstruction;
-use colslam_slam::{EventSink, SlamEvent};
+use colslam_slam::run::{RunConfig, RunHooks, RunOptions, RunOutput, RunStart};
+use colslam_slam::{EventSink, FeatureKind, MatcherKind, SlamEvent};
 use colslam_viewer::{
     Extractor, FrameUpdate, KeyframeUpdate, MapDelta, Matcher, RunController, RunSettings, RunState, Summary,
     VIEW_MAX_WIDTH, ViewerCamera, ViewerHandle, ViewerPoint, ViewerUpdate, downscale_for_view,
@@ -115,13 +116,14 @@ struct Bridge {
 }
 
 impl Bridge {
-    fn new(out: UpdateSink, in_flight: Arc<AtomicUsize>, args: &PipelineArgs) -> Self {
+    fn new(out: UpdateSink, in_flight: Arc<AtomicUsize>, opts: &RunOptions) -> Self {
+        let s = &opts.slam;
         Self {
             out,
             in_flight,
-            flow_threshold: args.flow_threshold,
-            min_matches: args.min_matches,
-            ring_capacity: (args.init_frames + RING_MARGIN).min(MAX_RING),
+            flow_threshold: s.keyframes.flow_threshold,
+            min_matches: s.keyframes.min_matches,
+            ring_capacity: (s.init.init_frames + RING_MARGIN).min(MAX_RING),
             ring: VecDeque::new(),
             camera: None,
             frame_size: (0, 0),
@@ -347,7 +349,7 @@ impl Bridge {
             }
             None => {
                 let (w, h) = (self.frame_size.0 as f64, self.frame_size.1 as f64);
-                let f = crate::cmd_run::DEFAULT_FOCAL_FACTOR * w.max(h);
+                let f = colslam_slam::run::DEFAULT_FOCAL_FACTOR * w.max(h);
                 (w, h, f, f, 0.5 * w, 0.5 * h)
             }
         };
@@ -464,12 +466,12 @@ impl RunShared {
 /// ([`RunShared::try_begin`], which also clears an old Stop); it is released
 /// right after the end state is sent.
 pub fn run_live(
-    args: &RunArgs,
+    args: &RunConfig,
     quiet: bool,
     handle: &ViewerHandle,
     shared: &RunShared,
     final_not_before: Instant,
-) -> Result<RunOutcome> {
+) -> Result<RunOutput> {
     shared.snapshot.begin();
     handle.apply(ViewerUpdate::Reset);
     handle.apply(ViewerUpdate::RunState(RunState::Running));
@@ -478,7 +480,7 @@ pub fn run_live(
     let (tx, msgs) = channel::<BridgeMsg>();
     let in_flight = Arc::new(AtomicUsize::new(0));
     let viewer = handle.clone();
-    let bridge = Bridge::new(Box::new(move |u| viewer.apply(u)), Arc::clone(&in_flight), &args.pipeline);
+    let bridge = Bridge::new(Box::new(move |u| viewer.apply(u)), Arc::clone(&in_flight), &args.options);
     let thread =
         std::thread::Builder::new().name("colslam-viewer-bridge".into()).spawn(move || bridge.run(events, msgs));
     let thread = match thread {
@@ -492,8 +494,8 @@ pub fn run_live(
         let (camera_tx, frame_tx) = (tx.clone(), tx);
         let hooks = RunHooks {
             cancel: Some(Arc::clone(&shared.cancel)),
-            on_camera: Some(Box::new(move |c: &Camera| {
-                let _ = camera_tx.send(BridgeMsg::Camera(c.clone()));
+            on_start: Some(Box::new(move |s: &RunStart| {
+                let _ = camera_tx.send(BridgeMsg::Camera(s.camera.clone()));
             })),
             before_frame: Some(Box::new(move |f: &colslam_io::Frame| {
                 // Never wait for the bridge: attach the picture only while it keeps up.
@@ -510,7 +512,7 @@ pub fn run_live(
                 }
             })),
         };
-        run_pipeline_with(args, quiet, sink, hooks)
+        run_with_progress(args, quiet, sink, hooks)
     };
     // The hooks and the event sink are gone: the bridge drains and ends.
     if let Some(t) = thread {
@@ -568,53 +570,45 @@ pub struct ViewController {
     handle: ViewerHandle,
     shared: Arc<RunShared>,
     /// Options the page does not set (feature count, seed, ...).
-    base: PipelineArgs,
+    base: RunOptions,
     worker: Mutex<Option<JoinHandle<()>>>,
 }
 
 impl ViewController {
     /// A controller feeding `handle`, with `base` for the options the page does not set.
-    pub fn new(handle: ViewerHandle, shared: Arc<RunShared>, base: PipelineArgs) -> Self {
+    pub fn new(handle: ViewerHandle, shared: Arc<RunShared>, base: RunOptions) -> Self {
         Self { handle, shared, base, worker: Mutex::new(None) }
     }
 }
 
-/// The run arguments the page's settings select, on top of `base`.
-pub fn run_args_from_settings(base: &PipelineArgs, s: &RunSettings) -> Result<RunArgs, String> {
+/// The run the page's settings select, on top of `base`, validated by the
+/// library's options.
+pub fn run_args_from_settings(base: &RunOptions, s: &RunSettings) -> Result<RunConfig, String> {
     s.validate()?;
-    let mut p = base.clone();
-    p.features = match s.extractor {
-        Extractor::Orb => "orb",
-        Extractor::Xfeat => "xfeat",
-    }
-    .into();
-    p.matcher = match s.matcher {
-        Matcher::Nn => "nn",
-        Matcher::Lighterglue => "lighterglue",
-    }
-    .into();
-    p.skip = s.skip_usize();
-    p.max_frames = s.max_frames.map(|m| usize::try_from(m).unwrap_or(usize::MAX));
-    p.init_frames =
+    let mut options = base.clone();
+    options.slam.frontend.features = match s.extractor {
+        Extractor::Orb => FeatureKind::Orb,
+        Extractor::Xfeat => FeatureKind::Xfeat,
+    };
+    options.slam.frontend.matcher = match s.matcher {
+        Matcher::Nn => MatcherKind::Nn,
+        Matcher::Lighterglue => MatcherKind::Lighterglue,
+    };
+    options.input.skip = s.skip_usize();
+    options.input.max_frames = s.max_frames.map(|m| usize::try_from(m).unwrap_or(usize::MAX));
+    options.slam.init.init_frames =
         usize::try_from(s.init_frames).map_err(|_| format!("invalid initialisation frames {}", s.init_frames))?;
-    p.flow_threshold = s.flow_threshold;
-    p.slam_options().validate().map_err(|e| e.to_string())?;
-    Ok(RunArgs {
-        input: s.input.clone(),
-        output: s.output.clone(),
-        camera: None,
-        preset: None,
-        focal: None,
-        gt: None,
-        pipeline: p,
-    })
+    options.slam.keyframes.flow_threshold = s.flow_threshold;
+    let config = RunConfig { options, ..RunConfig::new(&s.input, &s.output) };
+    config.validate().map_err(|e| e.to_string())?;
+    Ok(config)
 }
 
 impl RunController for ViewController {
     fn start(&self, settings: RunSettings) -> Result<(), String> {
         let args = run_args_from_settings(&self.base, &settings)?;
         // A bad input is reported to the page at once rather than as a failed run.
-        let src = colslam_io::SourceOptions { skip: args.pipeline.skip, ..Default::default() };
+        let src = args.options.source();
         colslam_io::probe_source(&args.input, &src).map_err(|e| e.to_string())?;
         if !self.shared.try_begin() {
             return Err("a run is already in progress; stop it first".into());
@@ -663,16 +657,9 @@ impl RunController for ViewController {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use clap::Parser;
 
-    #[derive(Parser)]
-    struct P {
-        #[command(flatten)]
-        p: PipelineArgs,
-    }
-
-    fn base() -> PipelineArgs {
-        P::try_parse_from(["x"]).map(|p| p.p).unwrap_or_else(|e| panic!("defaults: {e}"))
+    fn base() -> RunOptions {
+        RunOptions::default()
     }
 
     #[test]
@@ -689,9 +676,10 @@ mod tests {
         let a = run_args_from_settings(&base(), &s).unwrap_or_else(|e| panic!("{e}"));
         assert_eq!(a.input, Path::new("in"));
         assert_eq!(a.output, Path::new("out"));
-        assert_eq!((a.pipeline.skip, a.pipeline.max_frames, a.pipeline.init_frames), (3, Some(50), 10));
-        assert_eq!(a.pipeline.flow_threshold, 0.1);
-        assert_eq!((a.pipeline.features.as_str(), a.pipeline.matcher.as_str()), ("orb", "nn"));
+        let o = &a.options;
+        assert_eq!((o.input.skip, o.input.max_frames, o.slam.init.init_frames), (3, Some(50), 10));
+        assert_eq!(o.slam.keyframes.flow_threshold, 0.1);
+        assert_eq!((o.slam.frontend.features, o.slam.frontend.matcher), (FeatureKind::Orb, MatcherKind::Nn));
         let bad = RunSettings { skip: 0, ..s };
         assert!(run_args_from_settings(&base(), &bad).is_err());
     }

@@ -12,6 +12,7 @@ use crate::relative_pose::{estimate_essential, estimate_fundamental, estimate_ho
 use crate::triangulation::triangulation_angle;
 use crate::{Mat3, Vec2, Vec3};
 use colslam_geometry::Rigid3;
+use colslam_geometry::stats::upper_median_in_place;
 
 /// Classification of an image pair (COLMAP's `TwoViewGeometry::ConfigurationType`).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -114,25 +115,17 @@ pub struct TwoViewGeometry {
     pub median_tri_angle_deg: Option<f64>,
 }
 
-fn median(mut v: Vec<f64>) -> Option<f64> {
-    if v.is_empty() {
-        return None;
-    }
-    let mid = v.len() / 2;
-    v.select_nth_unstable_by(mid, f64::total_cmp);
-    Some(v[mid])
-}
-
 fn median_angle(pose: &RecoveredPose) -> Option<f64> {
     let c2 = pose.cam2_from_cam1.center();
-    let angles: Vec<f64> = pose
+    let mut angles: Vec<f64> = pose
         .points3d
         .iter()
         .zip(&pose.valid)
         .filter(|(_, v)| **v)
         .map(|(p, _)| triangulation_angle(&Vec3::zeros(), &c2, p).to_degrees())
         .collect();
-    median(angles)
+    // The upper median: one of the angles, never an average of two.
+    upper_median_in_place(&mut angles)
 }
 
 fn masked(x: &[Vec2], mask: &[bool]) -> Vec<Vec2> {

@@ -26,6 +26,7 @@ use colslam_estimators::{
     estimate_relative_pose, triangulate_two_view,
 };
 use colslam_features::{Features, NnMatcher, NnMatcherOptions, OrbExtractor, OrbOptions};
+use colslam_geometry::stats::median_in_place;
 use colslam_geometry::{Mat3, Rigid3};
 use colslam_image::Image;
 
@@ -83,10 +84,7 @@ fn load(dir: &Path) -> Vec<Frame> {
 }
 
 fn median(mut v: Vec<f64>) -> f64 {
-    v.sort_by(f64::total_cmp);
-    let n = v.len();
-    assert!(n > 0);
-    if n % 2 == 1 { v[n / 2] } else { 0.5 * (v[n / 2 - 1] + v[n / 2]) }
+    median_in_place(&mut v).expect("median of an empty sample")
 }
 
 fn pts2(p: &[Vec2]) -> String {

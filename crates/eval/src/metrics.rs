@@ -10,6 +10,7 @@
 //!   of the two middle values for an even count), std (population, ddof 0),
 //!   min, max.
 
+use colslam_geometry::stats::{mean_and_variance, median_in_place};
 use colslam_geometry::{Quat, Rigid3, nalgebra};
 
 /// Which scalar is taken from an error pose.
@@ -51,19 +52,12 @@ pub struct Stats {
 
 /// Statistics of `errors`; `None` when it is empty.
 pub fn statistics(errors: &[f64]) -> Option<Stats> {
-    if errors.is_empty() {
-        return None;
-    }
+    let (mean, var) = mean_and_variance(errors)?;
     let n = errors.len() as f64;
     let sse: f64 = errors.iter().map(|e| e * e).sum();
-    let mean = errors.iter().sum::<f64>() / n;
-    let var = errors.iter().map(|e| (e - mean) * (e - mean)).sum::<f64>() / n;
     let mut sorted = errors.to_vec();
-    sorted.sort_by(f64::total_cmp);
-    let mid = sorted.len() / 2;
-    // `sorted` is non-empty, so `mid` (and `mid - 1` when the length is even,
-    // hence >= 2) index into it.
-    let median = if sorted.len() % 2 == 1 { sorted[mid] } else { 0.5 * (sorted[mid - 1] + sorted[mid]) };
+    // Sorts `sorted` too; it is non-empty, so its ends are the min and max.
+    let median = median_in_place(&mut sorted)?;
     Some(Stats {
         rmse: (sse / n).sqrt(),
         mean,

@@ -7,6 +7,7 @@
 
 use crate::FeatureError;
 use crate::types::{Keypoint, Match};
+use colslam_geometry::stats::median_in_place;
 
 /// Result of [`flow_score`].
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -19,18 +20,6 @@ pub struct FlowScore {
     pub median_y: f64,
     /// Number of matches used.
     pub num_matches: usize,
-}
-
-/// Median of a non-empty slice (mean of the two middle values for an even
-/// count); reorders the slice.
-fn median(v: &mut [f64]) -> f64 {
-    v.sort_unstable_by(f64::total_cmp);
-    let n = v.len();
-    match (v.get(n / 2), n % 2) {
-        (Some(&hi), 1) => hi,
-        (Some(&hi), _) => v.get(n / 2 - 1).map_or(hi, |&lo| 0.5 * (lo + hi)),
-        (None, _) => 0.0,
-    }
 }
 
 /// The paper's flow score of `matches` between keypoints `kps_a` (query side)
@@ -69,8 +58,9 @@ pub fn flow_score(
     if matches.is_empty() {
         return Ok(FlowScore { score: 0.0, median_x: 0.0, median_y: 0.0, num_matches: 0 });
     }
-    let median_x = median(&mut dx);
-    let median_y = median(&mut dy);
+    // Non-empty here; the mean of the two middle values for an even count.
+    let median_x = median_in_place(&mut dx).unwrap_or(0.0);
+    let median_y = median_in_place(&mut dy).unwrap_or(0.0);
     Ok(FlowScore { score: median_x + median_y, median_x, median_y, num_matches: matches.len() })
 }
 

@@ -1,5 +1,6 @@
 //! Pure geometry for colslam: rigid (SE(3)) and similarity (Sim(3)) transforms,
-//! quaternion conventions, Umeyama alignment and a small deterministic RNG.
+//! quaternion conventions, Umeyama alignment, a small deterministic RNG and
+//! the sample statistics ([`stats`]: medians, mean and variance) the crates share.
 //!
 //! Conventions follow COLMAP: a transform named `a_from_b` maps coordinates
 //! expressed in frame `b` into frame `a` (`x_a = a_from_b * x_b`). An image's
@@ -7,6 +8,7 @@
 
 pub mod random;
 pub mod rigid;
+pub mod stats;
 pub mod umeyama;
 
 pub use nalgebra;

@@ -76,8 +76,7 @@ mod tests {
         let mut r = SplitMix64::new(1);
         let n = 100_000;
         let xs: Vec<f64> = (0..n).map(|_| r.normal()).collect();
-        let mean = xs.iter().sum::<f64>() / n as f64;
-        let var = xs.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / n as f64;
+        let (mean, var) = crate::stats::mean_and_variance(&xs).unwrap();
         assert!(mean.abs() < 0.02, "mean {mean}");
         assert!((var - 1.0).abs() < 0.02, "var {var}");
     }

@@ -94,54 +94,53 @@ pub fn refined_intrinsics(camera: &colslam_camera::Camera) -> IntrinsicsRefineme
     IntrinsicsRefinement::Params(idx)
 }
 
-/// Runs bundle adjustment on the part of `rec` named by `config` and writes
-/// the result back.
-pub fn adjust_bundle(
-    rec: &mut Reconstruction,
-    config: &BundleConfig,
-    opts: &BundleOptions,
-) -> Result<BaReport, SfmError> {
-    let variable_points: BTreeSet<Point3DId> = match &config.variable_points {
-        Some(p) => p.iter().copied().filter(|id| rec.point3d(*id).is_some()).collect(),
-        None => {
-            let mut s = BTreeSet::new();
-            for id in &config.variable_images {
-                let img = rec.image(*id).ok_or(SfmError::UnknownImage(*id))?;
-                s.extend(img.points2d.iter().filter_map(|p| p.point3d_id));
-            }
-            s
-        }
-    };
-    // Every registered image observing a variable point takes part.
-    let mut images: BTreeSet<ImageId> = config.variable_images.clone();
-    for pid in &variable_points {
-        if let Some(p) = rec.point3d(*pid) {
-            images.extend(p.track.iter().map(|e| e.image_id));
-        }
-    }
-    images.extend(config.constant_images.iter().copied());
+/// Index of each camera and pose of the bundle in the problem.
+struct ProblemIndex {
+    cameras: BTreeMap<CameraId, usize>,
+    poses: BTreeMap<ImageId, usize>,
+    points: Vec<Point3DId>,
+}
 
-    let mut problem = Problem::default();
-    let mut cam_index: BTreeMap<CameraId, usize> = BTreeMap::new();
-    let mut pose_index: BTreeMap<ImageId, usize> = BTreeMap::new();
-    for id in &images {
+/// The points `config` optimises: those given, or every point of the
+/// variable images.
+fn variable_points(rec: &Reconstruction, config: &BundleConfig) -> Result<BTreeSet<Point3DId>, SfmError> {
+    if let Some(p) = &config.variable_points {
+        return Ok(p.iter().copied().filter(|id| rec.point3d(*id).is_some()).collect());
+    }
+    let mut s = BTreeSet::new();
+    for id in &config.variable_images {
+        let img = rec.image(*id).ok_or(SfmError::UnknownImage(*id))?;
+        s.extend(img.points2d.iter().filter_map(|p| p.point3d_id));
+    }
+    Ok(s)
+}
+
+/// Adds the cameras and poses of `images` (registered ones) to `problem`.
+/// Cameras used by a constant image only stay fixed even when refining.
+fn add_images(
+    problem: &mut Problem,
+    rec: &Reconstruction,
+    config: &BundleConfig,
+    images: &BTreeSet<ImageId>,
+) -> Result<ProblemIndex, SfmError> {
+    let mut index = ProblemIndex { cameras: BTreeMap::new(), poses: BTreeMap::new(), points: Vec::new() };
+    for id in images {
         let img = rec.image(*id).ok_or(SfmError::UnknownImage(*id))?;
         if !img.registered {
             continue;
         }
         let variable = config.variable_images.contains(id) && !config.constant_images.contains(id);
-        if let std::collections::btree_map::Entry::Vacant(e) = cam_index.entry(img.camera_id) {
+        if let std::collections::btree_map::Entry::Vacant(e) = index.cameras.entry(img.camera_id) {
             let cam = rec.camera(img.camera_id).ok_or(colslam_scene::SceneError::UnknownCamera(img.camera_id))?;
             let refine =
                 if config.refine_intrinsics { refined_intrinsics(&cam.camera) } else { IntrinsicsRefinement::Fixed };
             e.insert(problem.add_camera(cam.camera.clone(), refine));
         }
         let pose = if variable { BaPose::variable(img.cam_from_world) } else { BaPose::fixed(img.cam_from_world) };
-        pose_index.insert(*id, problem.add_pose(pose));
+        index.poses.insert(*id, problem.add_pose(pose));
     }
-    // Cameras used by a constant image only stay fixed even when refining.
     if config.refine_intrinsics {
-        for (cid, &ci) in &cam_index {
+        for (cid, &ci) in &index.cameras {
             let used_by_variable =
                 config.variable_images.iter().filter_map(|id| rec.image(*id)).any(|img| img.camera_id == *cid);
             if !used_by_variable {
@@ -149,14 +148,26 @@ pub fn adjust_bundle(
             }
         }
     }
-    let mut point_ids = Vec::with_capacity(variable_points.len());
-    for pid in &variable_points {
+    Ok(index)
+}
+
+/// Adds the points and their observations in the problem's images, each
+/// weighted by its keypoint's standard deviation when given.
+fn add_points(
+    problem: &mut Problem,
+    index: &mut ProblemIndex,
+    rec: &Reconstruction,
+    opts: &BundleOptions,
+    points: &BTreeSet<Point3DId>,
+) {
+    index.points.reserve(points.len());
+    for pid in points {
         let Some(p) = rec.point3d(*pid) else { continue };
         let pi = problem.add_point(p.xyz, false);
-        point_ids.push(*pid);
+        index.points.push(*pid);
         for el in &p.track {
-            let (Some(&pose), Some(img)) = (pose_index.get(&el.image_id), rec.image(el.image_id)) else { continue };
-            let Some(&cam) = cam_index.get(&img.camera_id) else { continue };
+            let (Some(&pose), Some(img)) = (index.poses.get(&el.image_id), rec.image(el.image_id)) else { continue };
+            let Some(&cam) = index.cameras.get(&img.camera_id) else { continue };
             let Some(kp) = img.points2d.get(el.point2d_idx as usize) else { continue };
             let sigma = opts
                 .keypoint_sigmas
@@ -169,8 +180,11 @@ pub fn adjust_bundle(
             problem.add_weighted_observation(pose, cam, pi, kp.xy, 1.0 / f64::from(sigma));
         }
     }
-    // Gauge: with no constant pose, fix one pose and one translation
-    // coordinate of another, as COLMAP does.
+}
+
+/// Gauge: with no constant pose, fix one pose and one translation
+/// coordinate of another, as COLMAP does.
+fn fix_gauge(problem: &mut Problem, index: &ProblemIndex, config: &BundleConfig) {
     let any_constant = problem.poses.iter().any(|p| p.fixed);
     let gauge = config.gauge.or_else(|| {
         if any_constant {
@@ -183,32 +197,63 @@ pub fn adjust_bundle(
         }
     });
     if let Some((a, b)) = gauge
-        && let (Some(&ia), Some(&ib)) = (pose_index.get(&a), pose_index.get(&b))
+        && let (Some(&ia), Some(&ib)) = (index.poses.get(&a), index.poses.get(&b))
     {
         problem.fix_gauge(ia, ib);
     }
+}
 
-    let report = BundleAdjuster::solve(&mut problem, &opts.ba)?;
-
-    for (id, &pi) in &pose_index {
+/// Writes the solved poses, points and (when refined) intrinsics back.
+fn write_back(
+    rec: &mut Reconstruction,
+    problem: &Problem,
+    index: &ProblemIndex,
+    config: &BundleConfig,
+) -> Result<(), SfmError> {
+    for (id, &pi) in &index.poses {
         if let Some(pose) = problem.poses.get(pi)
             && (!pose.fixed || pose.fixed_translation.iter().any(|f| *f))
         {
             rec.set_cam_from_world(*id, pose.cam_from_world)?;
         }
     }
-    for (pid, bp) in point_ids.iter().zip(&problem.points) {
+    for (pid, bp) in index.points.iter().zip(&problem.points) {
         if let Some(xyz) = rec.point3d_xyz_mut(*pid) {
             *xyz = bp.xyz;
         }
     }
     if config.refine_intrinsics {
-        for (cid, &ci) in &cam_index {
+        for (cid, &ci) in &index.cameras {
             if let (Some(dst), Some(src)) = (rec.camera_mut(*cid), problem.cameras.get(ci)) {
                 dst.params.clone_from(&src.camera.params);
             }
         }
     }
+    Ok(())
+}
+
+/// Runs bundle adjustment on the part of `rec` named by `config` and writes
+/// the result back.
+pub fn adjust_bundle(
+    rec: &mut Reconstruction,
+    config: &BundleConfig,
+    opts: &BundleOptions,
+) -> Result<BaReport, SfmError> {
+    let variable_points = variable_points(rec, config)?;
+    // Every registered image observing a variable point takes part.
+    let mut images: BTreeSet<ImageId> = config.variable_images.clone();
+    for pid in &variable_points {
+        if let Some(p) = rec.point3d(*pid) {
+            images.extend(p.track.iter().map(|e| e.image_id));
+        }
+    }
+    images.extend(config.constant_images.iter().copied());
+    let mut problem = Problem::default();
+    let mut index = add_images(&mut problem, rec, config, &images)?;
+    add_points(&mut problem, &mut index, rec, opts, &variable_points);
+    fix_gauge(&mut problem, &index, config);
+    let report = BundleAdjuster::solve(&mut problem, &opts.ba)?;
+    write_back(rec, &problem, &index, config)?;
     Ok(report)
 }
 

@@ -56,6 +56,27 @@ pub enum SlamError {
     /// Writing a trajectory failed.
     #[error(transparent)]
     Trajectory(#[from] colslam_eval::EvalError),
+    /// Processing one frame failed.
+    #[error("processing frame {index} ({name}): {source}")]
+    Frame {
+        /// Frame index.
+        index: usize,
+        /// Frame name.
+        name: String,
+        /// What failed.
+        source: Box<SlamError>,
+    },
+    /// The input or output cannot be used as given.
+    #[error("{path}: {reason}")]
+    Path {
+        /// The input or output path.
+        path: PathBuf,
+        /// What is wrong with it.
+        reason: String,
+    },
+    /// The thread that reads and extracts frames ahead of the mapper panicked.
+    #[error("the frame reader thread panicked")]
+    ReaderPanicked,
     /// Serialising the report failed.
     #[error("report: {0}")]
     Json(#[from] serde_json::Error),

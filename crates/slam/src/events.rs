@@ -129,3 +129,170 @@ pub struct EventPoint {
     /// Colour.
     pub color: [u8; 3],
 }
+
+/// Flow lines sent per frame event (a subsample of the matches).
+const MAX_FLOW_LINES: usize = 300;
+
+/// Turns the pipeline's progress into events: what was sent of the current
+/// map (so map updates are increments) and the diagnostics that only
+/// consumers need. Costs nothing without a consumer.
+#[derive(Debug, Default)]
+pub(crate) struct Emitter {
+    sink: EventSink,
+    /// Keyframes whose points moved in a local BA (the newest ones).
+    local_ba_images: usize,
+    /// Point ids of the current map sent so far.
+    sent_points: std::collections::HashSet<colslam_scene::Point3DId>,
+    /// Ground truth for diagnostics: when set, the keyframes' ATE is logged
+    /// (debug level) after every keyframe.
+    debug_gt: Option<colslam_eval::trajectory::Trajectory>,
+}
+
+impl Emitter {
+    pub(crate) fn new(sink: EventSink, local_ba_images: usize) -> Self {
+        Self { sink, local_ba_images, ..Self::default() }
+    }
+
+    pub(crate) fn set_debug_ground_truth(&mut self, gt: colslam_eval::trajectory::Trajectory) {
+        self.debug_gt = Some(gt);
+    }
+
+    pub(crate) fn send(&mut self, event: SlamEvent) {
+        self.sink.send(event);
+    }
+
+    /// A new map is tracked: nothing of it was sent yet.
+    pub(crate) fn new_map(&mut self) {
+        self.sent_points.clear();
+    }
+
+    /// A frame went through the keyframe test against `map`'s reference.
+    pub(crate) fn frame(
+        &mut self,
+        map: Option<&crate::mapper::Mapper>,
+        data: &crate::frame::FrameData,
+        matches: &[colslam_features::Match],
+        flow: f64,
+        is_keyframe: bool,
+    ) {
+        if !self.sink.is_active() {
+            return;
+        }
+        let kf = map.and_then(|m| {
+            // The keyframe the frame was matched to is the last one, or the
+            // one before when this frame itself just became a keyframe.
+            let k = m.keyframes().len().checked_sub(if is_keyframe { 2 } else { 1 })?;
+            m.keyframes().get(k)
+        });
+        let step = (matches.len() / MAX_FLOW_LINES).max(1);
+        let flow_lines = kf
+            .map(|kf| {
+                matches
+                    .iter()
+                    .step_by(step)
+                    .filter_map(|m| {
+                        let a = data.features.keypoints.get(m.query as usize)?;
+                        let b = kf.data.features.keypoints.get(m.train as usize)?;
+                        Some([a.x, a.y, b.x, b.y])
+                    })
+                    .collect()
+            })
+            .unwrap_or_default();
+        self.sink.send(SlamEvent::FrameProcessed {
+            index: data.index(),
+            timestamp: data.id.timestamp,
+            flow_score: flow,
+            num_matches: matches.len(),
+            flow_lines,
+            is_keyframe,
+        });
+    }
+
+    /// A keyframe of `map` was registered.
+    pub(crate) fn keyframe(&mut self, map: &crate::mapper::Mapper, image_id: colslam_scene::ImageId) {
+        if !self.sink.is_active() {
+            return;
+        }
+        let Some(img) = map.reconstruction().image(image_id) else { return };
+        let frame_index = map.keyframes().iter().find(|k| k.image_id == image_id).map_or(0, |k| k.data.index());
+        self.sink.send(SlamEvent::KeyframeAdded {
+            map: map.index(),
+            image_id: image_id.0,
+            frame_index,
+            cam_from_world: img.cam_from_world,
+            num_points: img.num_points3d(),
+        });
+    }
+
+    /// Sends the map's changes since the last update (or everything).
+    pub(crate) fn map(&mut self, map: &crate::mapper::Mapper, full: bool) {
+        if !self.sink.is_active() {
+            return;
+        }
+        let rec = map.reconstruction();
+        let current: std::collections::HashSet<colslam_scene::Point3DId> = rec.point3d_ids().into_iter().collect();
+        let removed: Vec<u64> =
+            if full { Vec::new() } else { self.sent_points.difference(&current).map(|p| p.0).collect() };
+        // Points of the newest keyframes moved in local BA; new points are
+        // those not sent yet.
+        let recent: std::collections::HashSet<colslam_scene::ImageId> =
+            map.keyframes().iter().rev().take(self.local_ba_images).map(|k| k.image_id).collect();
+        let points: Vec<EventPoint> = rec
+            .points3d()
+            .filter(|(id, p)| {
+                full || !self.sent_points.contains(id) || p.track.iter().any(|e| recent.contains(&e.image_id))
+            })
+            .map(|(id, p)| EventPoint { id: id.0, xyz: p.xyz, color: p.color })
+            .collect();
+        self.sent_points = current;
+        let poses = map
+            .keyframes()
+            .iter()
+            .filter(|k| full || recent.contains(&k.image_id))
+            .filter_map(|k| rec.image(k.image_id).map(|img| (k.image_id.0, k.data.index(), img.cam_from_world)))
+            .collect();
+        self.sink.send(SlamEvent::MapUpdated {
+            map: map.index(),
+            full,
+            points,
+            removed_points: removed,
+            poses,
+            keyframes: rec.num_registered_images(),
+            num_points: rec.num_points3d(),
+            observations: rec.num_observations(),
+            mean_reproj_error: rec.mean_reprojection_error(),
+        });
+    }
+
+    /// Logs the keyframes' ATE against the debug ground truth.
+    pub(crate) fn log_keyframe_ate(&self, map: &crate::mapper::Mapper) {
+        let Some(gt) = &self.debug_gt else { return };
+        if !tracing::enabled!(tracing::Level::DEBUG) {
+            return;
+        }
+        let rec = map.reconstruction();
+        let mut kfs: Vec<(f64, Rigid3)> = map
+            .keyframes()
+            .iter()
+            .filter_map(|k| {
+                rec.image(k.image_id).filter(|i| i.registered).map(|i| (k.data.id.timestamp, i.cam_from_world))
+            })
+            .collect();
+        kfs.sort_by(|a, b| a.0.total_cmp(&b.0));
+        let est = colslam_eval::trajectory::Trajectory::from_cam_from_world(
+            kfs.iter().map(|k| k.0).collect(),
+            &kfs.iter().map(|k| k.1).collect::<Vec<_>>(),
+        );
+        match colslam_eval::evaluate(gt, &est, &colslam_eval::EvalOptions::default()) {
+            Ok(r) => tracing::debug!(
+                "map {}: {} keyframes, ATE {:.4} m (max {:.4} m), scale {:.4}",
+                map.index(),
+                r.matched,
+                r.ate_rmse,
+                r.ate_max,
+                r.scale
+            ),
+            Err(e) => tracing::debug!("map {}: keyframe ATE not available: {e}", map.index()),
+        }
+    }
+}

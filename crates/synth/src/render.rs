@@ -279,8 +279,7 @@ mod tests {
         let mut rng = SplitMix64::new(3);
         let n = 200_000;
         let xs: Vec<f64> = (0..n).map(|_| approx_normal(&mut rng) as f64).collect();
-        let mean = xs.iter().sum::<f64>() / n as f64;
-        let var = xs.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / n as f64;
+        let (mean, var) = colslam_geometry::stats::mean_and_variance(&xs).unwrap();
         assert!(mean.abs() < 0.01, "{mean}");
         assert!((var - 1.0).abs() < 0.02, "{var}");
     }

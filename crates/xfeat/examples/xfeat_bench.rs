@@ -4,6 +4,7 @@
 //! (weights from `COLSLAM_XFEAT_WEIGHTS` or the peer venv, see `find_weights`).
 
 use colslam_features::{FeatureExtractor, Matcher, NnMatcher, NnMatcherOptions};
+use colslam_geometry::stats::upper_median_in_place;
 use colslam_image::Image;
 use colslam_xfeat::{
     LighterGlue, LighterGlueOptions, MnnCosineMatcher, MnnCosineOptions, XFeat, XFeatModel, XFeatOptions, find_weights,
@@ -11,8 +12,7 @@ use colslam_xfeat::{
 use std::time::Instant;
 
 fn median(mut v: Vec<f64>) -> f64 {
-    v.sort_by(f64::total_cmp);
-    v[v.len() / 2]
+    upper_median_in_place(&mut v).expect("median of an empty sample")
 }
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {

@@ -19,7 +19,8 @@
 //!   relative pose (undistorted with the dataset's FULL_OPENCV camera).
 //!
 //! The OpenCV side is `scripts/peers/bench_features.py`, run by the peer
-//! venv's interpreter (`COLSLAM_PYTHON`, else `./.venv/bin/python`).
+//! venv's interpreter ([`colslam_testutil::find_peer_python`]: `COLSLAM_PYTHON`,
+//! else `.venv/bin/python` here or above, else the workspace's).
 
 use std::path::{Path, PathBuf};
 use std::process::Command;
@@ -27,6 +28,7 @@ use std::time::Instant;
 
 use anyhow::{Context, Result, anyhow, bail};
 use colslam_camera::Camera;
+use colslam_estimators::sampson_error_sq;
 use colslam_eval::Trajectory;
 use colslam_features::{Features, NnMatcher, NnMatcherOptions, OrbExtractor, OrbOptions};
 use colslam_geometry::{Mat3, Rigid3, Vec2, Vec3};
@@ -34,8 +36,8 @@ use colslam_image::Image;
 use serde_json::{Value, json};
 
 // Shared with the other layer benchmarks, which import them from here.
-use super::workspace_root;
-pub(crate) use super::{data_dir, median};
+pub(crate) use crate::median;
+use colslam_testutil::{find_data_dir, find_peer_python, workspace_root};
 
 /// Dataset the benchmark runs on.
 const DATASET: &str = "tum_fr1_rpy_sub";
@@ -109,22 +111,6 @@ pub(crate) fn machine() -> Value {
     json!({ "nproc": nproc, "cpu_model": cpu, "loadavg": load })
 }
 
-/// The peer venv's Python interpreter: `COLSLAM_PYTHON`, else
-/// `./.venv/bin/python`, else the workspace's `.venv`.
-pub(crate) fn peer_python() -> Result<PathBuf> {
-    if let Some(p) = std::env::var_os("COLSLAM_PYTHON") {
-        let p = PathBuf::from(p);
-        if p.exists() {
-            return Ok(p);
-        }
-        bail!("COLSLAM_PYTHON={} does not exist (run scripts/setup-peers.sh)", p.display());
-    }
-    let candidates = [PathBuf::from(".venv/bin/python"), workspace_root().join(".venv/bin/python")];
-    candidates.iter().find(|p| p.exists()).cloned().ok_or_else(|| {
-        anyhow!("peer Python venv not found at ./.venv/bin/python: run scripts/setup-peers.sh (or set COLSLAM_PYTHON)")
-    })
-}
-
 /// A peer script under `scripts/peers/` (current directory or workspace).
 pub(crate) fn peer_script(name: &str) -> Result<PathBuf> {
     let rel = Path::new("scripts/peers").join(name);
@@ -136,7 +122,7 @@ pub(crate) fn peer_script(name: &str) -> Result<PathBuf> {
 
 /// Runs a peer script on a JSON input file and parses the JSON it prints.
 pub(crate) fn run_peer(script: &str, input: &Value) -> Result<Value> {
-    let py = peer_python()?;
+    let py = find_peer_python()?;
     let script = peer_script(script)?;
     let dir = std::env::temp_dir().join(format!("colslam-bench-{}", std::process::id()));
     std::fs::create_dir_all(&dir).with_context(|| format!("cannot create {}", dir.display()))?;
@@ -224,17 +210,6 @@ pub(crate) fn gt_fundamental(k: &Mat3, world_from_cam1: &Rigid3, world_from_cam2
     Some(k_inv.transpose() * e * k_inv)
 }
 
-/// Sampson distance (pixels, first-order geometric error) of a match.
-pub(crate) fn sampson_px(f: &Mat3, p1: &Vec2, p2: &Vec2) -> f64 {
-    let x1 = Vec3::new(p1.x, p1.y, 1.0);
-    let x2 = Vec3::new(p2.x, p2.y, 1.0);
-    let fx1 = f * x1;
-    let ftx2 = f.transpose() * x2;
-    let num = x2.dot(&fx1);
-    let den = fx1.x * fx1.x + fx1.y * fx1.y + ftx2.x * ftx2.x + ftx2.y * ftx2.y;
-    if den > 0.0 { (num * num / den).sqrt() } else { f64::INFINITY }
-}
-
 /// Undistorted pinhole pixel of a distorted pixel (OpenCV convention), or
 /// `None` when undistortion fails.
 fn undistort(cam: &Camera, k: &Mat3, p: [f64; 2]) -> Option<Vec2> {
@@ -264,7 +239,8 @@ fn score_pair(
     for (a, b) in m {
         let (Some(p1), Some(p2)) = (kp1.get(*a), kp2.get(*b)) else { continue };
         let ok = match (undistort(cam, k, [p1[0], p1[1]]), undistort(cam, k, [p2[0], p2[1]])) {
-            (Some(u1), Some(u2)) => sampson_px(f, &u1, &u2) < SAMPSON_MAX_PX,
+            // Sampson distance in pixels (first-order geometric error).
+            (Some(u1), Some(u2)) => sampson_error_sq(f, &u1, &u2).sqrt() < SAMPSON_MAX_PX,
             _ => false,
         };
         good += usize::from(ok);
@@ -465,7 +441,7 @@ pub fn run(args: &Args, quiet: bool) -> Result<()> {
     if args.frames < 2 {
         bail!("--frames must be at least 2, got {}", args.frames);
     }
-    let dir = data_dir()?.join(DATASET);
+    let dir = find_data_dir()?.join(DATASET);
     if !dir.is_dir() {
         bail!("dataset {} not found (set COLSLAM_DATA)", dir.display());
     }

@@ -28,8 +28,9 @@
 //! time is the minimum over `--repeats`; CPU time is process CPU (all
 //! threads) of that run.
 
-use super::features::{data_dir, machine, peer_python, peer_script};
+use crate::features::{machine, peer_script};
 use anyhow::{Context, Result, anyhow, bail};
+use colslam_geometry::stats::upper_median_in_place;
 use colslam_geometry::{Quat, Rigid3, SplitMix64, Vec3};
 use colslam_optim::synthetic::{SyntheticOptions, perturb, synthetic_scene};
 use colslam_optim::{BaOptions, BaPose, BaReport, BundleAdjuster, IntrinsicsRefinement, LossFunction, Problem};
@@ -37,6 +38,7 @@ use colslam_scene::{
     CameraId, Image, ImageId, ModelFormat, Point3D, Point3DId, Reconstruction, TrackElement, UNKNOWN_ERROR, read_model,
     write_model,
 };
+use colslam_testutil::{find_data_dir, find_peer_python};
 use serde_json::{Value, json};
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -269,7 +271,7 @@ fn real_model(frames: usize, threads: usize, quiet: bool) -> Result<Reconstructi
     let dir = cache_dir(frames);
     let sparse = dir.join("sparse");
     if !sparse.join("points3D.bin").is_file() {
-        let dataset = data_dir()?.join(REAL_DATASET);
+        let dataset = find_data_dir()?.join(REAL_DATASET);
         if !dataset.is_dir() {
             bail!("dataset {} not found", dataset.display());
         }
@@ -279,7 +281,7 @@ fn real_model(frames: usize, threads: usize, quiet: bool) -> Result<Reconstructi
                 dir.display()
             );
         }
-        let py = peer_python()?;
+        let py = find_peer_python()?;
         let script = peer_script("make_tum_model.py")?;
         let out = Command::new(&py)
             .arg(&script)
@@ -298,8 +300,9 @@ fn real_model(frames: usize, threads: usize, quiet: bool) -> Result<Reconstructi
     read_model(&sparse).with_context(|| format!("cannot read the cached model {}", sparse.display()))
 }
 
-/// Depths of every observation of a model, sorted.
-fn observation_depths(rec: &Reconstruction) -> Vec<f64> {
+/// Upper median of the depths of every observation of a model (one of the
+/// depths); an error when the model has no observation.
+fn median_observation_depth(rec: &Reconstruction) -> Result<f64> {
     let mut depths: Vec<f64> = Vec::new();
     for (_, p) in rec.points3d() {
         for el in &p.track {
@@ -308,16 +311,13 @@ fn observation_depths(rec: &Reconstruction) -> Vec<f64> {
             }
         }
     }
-    depths.sort_by(f64::total_cmp);
-    depths
+    upper_median_in_place(&mut depths).ok_or_else(|| anyhow!("the real model has no observations"))
 }
 
 /// Removes points seen at a depth below [`REAL_MIN_DEPTH_FRACTION`] of the
 /// median; returns how many.
 fn remove_near_points(rec: &mut Reconstruction) -> Result<usize> {
-    let depths = observation_depths(rec);
-    let Some(&median) = depths.get(depths.len() / 2) else { bail!("the real model has no observations") };
-    let min_depth = REAL_MIN_DEPTH_FRACTION * median;
+    let min_depth = REAL_MIN_DEPTH_FRACTION * median_observation_depth(rec)?;
     let near: Vec<Point3DId> = rec
         .points3d()
         .filter(|(_, p)| {
@@ -336,9 +336,7 @@ fn remove_near_points(rec: &mut Reconstruction) -> Result<usize> {
 /// Perturbs the registered poses (by id) and points (by id) of a real model,
 /// seeded; offsets scale with the median observation depth.
 fn perturb_reconstruction(rec: &mut Reconstruction, seed: u64) -> Result<()> {
-    let depths = observation_depths(rec);
-    let Some(&median) = depths.get(depths.len() / 2) else { bail!("the real model has no observations") };
-    let sigma = REAL_OFFSET_SIGMA * median.abs();
+    let sigma = REAL_OFFSET_SIGMA * median_observation_depth(rec)?.abs();
     let mut rng = SplitMix64::new(seed);
     let mut n3 = |s: f64| Vec3::new(rng.normal(), rng.normal(), rng.normal()) * s;
     let ids: Vec<ImageId> = rec.images().filter(|i| i.registered).map(|i| i.id).collect();
@@ -385,7 +383,7 @@ fn run_ours(dir: &Path, loss: LossFunction, threads: usize, repeats: usize) -> R
 
 /// Ceres' solve through `bench_ba.py`.
 fn run_ceres(dir: &Path, peer_loss: (&str, f64), threads: usize, repeats: usize) -> Result<(Run, Value)> {
-    let py = peer_python()?;
+    let py = find_peer_python()?;
     let script = peer_script("bench_ba.py")?;
     let out = Command::new(&py)
         .arg(&script)

@@ -17,6 +17,7 @@ mod runner;
 mod sequences;
 
 use anyhow::{Context, Result, bail};
+use colslam_testutil::{PeerPythonError, find_peer_python, find_upwards};
 use report::{FeatureOptions, MEASURED_EARLIER, PAPER, RunInfo, RunRow, Status, SuiteReport};
 use runner::{last_lines, run_measured};
 use sequences::{CameraSpec, Sequence};
@@ -307,24 +308,15 @@ struct PeerEnv {
     scripts_root: Option<PathBuf>,
 }
 
-/// The first ancestor of the current directory or of the executable that holds `rel`.
-fn find_upwards(rel: &str) -> Option<PathBuf> {
-    let mut starts = Vec::new();
-    if let Ok(d) = std::env::current_dir() {
-        starts.push(d);
-    }
-    if let Ok(e) = std::env::current_exe() {
-        starts.push(e);
-    }
-    starts.iter().flat_map(|s| s.ancestors()).find(|a| a.join(rel).exists()).map(Path::to_path_buf)
-}
-
 impl PeerEnv {
+    /// The shared lookup ([`find_peer_python`]); `COLSLAM_PYTHON` is used as
+    /// given even when no such file exists (a command on `PATH`; a wrong one
+    /// shows as the peer rows' error), and without any venv `python3`.
     fn find() -> Self {
-        let python = std::env::var_os("COLSLAM_PYTHON")
-            .map(PathBuf::from)
-            .or_else(|| find_upwards(".venv/bin/python").map(|r| r.join(".venv/bin/python")))
-            .unwrap_or_else(|| PathBuf::from("python3"));
+        let python = match find_peer_python() {
+            Ok(p) | Err(PeerPythonError::EnvMissing(p)) => p,
+            Err(PeerPythonError::NotFound) => PathBuf::from("python3"),
+        };
         PeerEnv { python, scripts_root: find_upwards(PYCOLMAP_SCRIPT) }
     }
 }

@@ -1,14 +1,20 @@
 //! `colslam bench`: benchmarks. With no kind, the sequence suite (the paper's
 //! tables, side by side with peers); `features`, `estimators` and `ba` time
 //! one layer against its peer (OpenCV, pycolmap, Ceres through pycolmap).
+//!
+//! This is an application crate of the colslam binary, so it uses anyhow like
+//! the binary: it is the binary's benchmark lab (reached as `colslam bench`,
+//! whose clap arguments are [`BenchArgs`]), not a library for users. The
+//! datasets and the Python peers are found through `colslam-testutil`'s
+//! lookups ([`colslam_testutil::find_data_dir`],
+//! [`colslam_testutil::find_peer_python`]).
 
 pub mod ba;
 pub mod estimators;
 pub mod features;
 pub mod suite;
 
-use anyhow::{Result, anyhow, bail};
-use std::path::{Path, PathBuf};
+use anyhow::Result;
 
 /// Arguments of `bench`.
 #[derive(Debug, clap::Args)]
@@ -42,40 +48,9 @@ pub fn run(args: &BenchArgs, quiet: bool) -> Result<()> {
     }
 }
 
-/// The workspace root as compiled in (fallback for relative paths).
-pub(crate) fn workspace_root() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("../..")
-}
-
-/// The datasets folder: `COLSLAM_DATA`, else the first folder of
-/// `./datasets`, `../shared/datasets` (relative to the current directory) and
-/// `../shared/datasets` beside the workspace that exists.
-pub(crate) fn data_dir() -> Result<PathBuf> {
-    if let Some(d) = std::env::var_os("COLSLAM_DATA") {
-        let d = PathBuf::from(d);
-        if d.is_dir() {
-            return Ok(d);
-        }
-        bail!("COLSLAM_DATA={} is not a folder", d.display());
-    }
-    let candidates =
-        [PathBuf::from("datasets"), PathBuf::from("../shared/datasets"), workspace_root().join("../shared/datasets")];
-    candidates.iter().find(|d| d.is_dir()).cloned().ok_or_else(|| {
-        let looked: Vec<String> = candidates.iter().map(|c| c.display().to_string()).collect();
-        anyhow!("dataset folder not found (looked in {}); set COLSLAM_DATA", looked.join(", "))
-    })
-}
-
 /// Median of the finite values of a sample (NaN when there are none).
 pub(crate) fn median(v: &[f64]) -> f64 {
-    let mut s: Vec<f64> = v.iter().copied().filter(|x| x.is_finite()).collect();
-    if s.is_empty() {
-        return f64::NAN;
-    }
-    s.sort_by(f64::total_cmp);
-    let n = s.len();
-    // n >= 1 here, so n / 2 and (n - 1) / 2 are valid indices.
-    0.5 * (s[(n - 1) / 2] + s[n / 2])
+    colslam_geometry::stats::median_finite(v).unwrap_or(f64::NAN)
 }
 
 #[cfg(test)]

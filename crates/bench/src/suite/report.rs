@@ -196,10 +196,11 @@ pub struct SummaryRow {
     pub plots: Vec<String>,
 }
 
-/// Median of the present values (mean of the two middle ones for an even count).
+/// Median of the present finite values (mean of the two middle ones for an
+/// even count); `None` when there is none (or the mean overflows).
 pub fn median(values: impl IntoIterator<Item = Option<f64>>) -> Option<f64> {
     let v: Vec<f64> = values.into_iter().flatten().collect();
-    Some(crate::bench::median(&v)).filter(|m| m.is_finite())
+    colslam_geometry::stats::median_finite(&v).filter(|m| m.is_finite())
 }
 
 /// Groups rows by (sequence, system, setting) in first-seen order and takes medians.

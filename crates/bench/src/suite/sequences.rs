@@ -118,13 +118,13 @@ impl Sequence {
 }
 
 /// The datasets folder: `--data`, else the shared lookup
-/// ([`crate::bench::data_dir`]), else `datasets` (whose sequences then show
-/// as not found).
+/// ([`colslam_testutil::find_data_dir`]), else `datasets` (whose sequences
+/// then show as not found).
 pub fn data_dir(arg: Option<&Path>) -> PathBuf {
     if let Some(d) = arg {
         return d.to_path_buf();
     }
-    crate::bench::data_dir().unwrap_or_else(|e| {
+    colslam_testutil::find_data_dir().unwrap_or_else(|e| {
         tracing::warn!("{e:#}");
         PathBuf::from("datasets")
     })

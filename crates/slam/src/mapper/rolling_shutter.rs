@@ -20,10 +20,19 @@
 //! adjustment", CVPR 2012); ours keeps the velocities fixed from the first
 //! solution instead of estimating them in BA.
 
-use crate::map::FramePose;
+use super::localize::Localization;
+use super::state::Mapper;
+use crate::frame::FramePose;
+use crate::options::{GlobalBaTolerance, SlamOptions};
+use crate::timing::StageTimings;
 use colslam_camera::Camera;
 use colslam_geometry::{Quat, Vec2, Vec3};
+use colslam_sfm::SfmError;
 use std::collections::HashMap;
+
+/// A frame's angular velocity is taken from its neighbours only when they
+/// are at most this far apart in time (seconds).
+pub const MAX_GAP_S: f64 = 1.0;
 
 /// Camera-frame angular velocity (rad/s) of each posed frame, by frame
 /// index: the rotation from the previous to the next posed frame over their
@@ -32,19 +41,19 @@ use std::collections::HashMap;
 /// neighbours are more than `max_gap` seconds apart get none.
 pub fn angular_velocities(poses: &[FramePose], max_gap: f64) -> HashMap<usize, Vec3> {
     let mut by_time: Vec<&FramePose> = poses.iter().collect();
-    by_time.sort_by(|a, b| a.timestamp.total_cmp(&b.timestamp).then(a.index.cmp(&b.index)));
+    by_time.sort_by(|a, b| a.frame.timestamp.total_cmp(&b.frame.timestamp).then(a.frame.index.cmp(&b.frame.index)));
     let mut out = HashMap::new();
     for i in 0..by_time.len() {
         let prev = if i > 0 { by_time[i - 1] } else { by_time[i] };
         let next = by_time.get(i + 1).copied().unwrap_or(by_time[i]);
-        let dt = next.timestamp - prev.timestamp;
+        let dt = next.frame.timestamp - prev.frame.timestamp;
         if !(dt > 0.0 && dt <= max_gap) {
             continue;
         }
         let rel: Quat = next.cam_from_world.rotation * prev.cam_from_world.rotation.inverse();
         let w = rel.scaled_axis() / dt;
         if w.iter().all(|v| v.is_finite()) {
-            out.insert(by_time[i].index, w);
+            out.insert(by_time[i].frame.index, w);
         }
     }
     out
@@ -73,6 +82,79 @@ pub fn compensate(camera: &Camera, px: &Vec2, w: &Vec3, readout: f64) -> Option<
     (px2.iter().chain(n2.iter()).all(|v| v.is_finite())).then_some((px2, n2))
 }
 
+impl Mapper {
+    /// One round of rolling-shutter compensation of a finished map, from
+    /// its first localisation: every keyframe observation and every
+    /// non-keyframe record is moved, from its measured position, to its
+    /// frame's middle-row time with the frames' angular velocities; the map
+    /// is refined globally (track completion, merging and filtering matter:
+    /// corrected observations join tracks they did not fit before), then to
+    /// [`crate::options::ROLLING_SHUTTER_FINAL_BA_TOLERANCE`], and every frame is localised again.
+    /// Re-estimating the velocities from the compensated poses and repeating
+    /// gave no better trajectory, at a global BA each (docs/benchmarks.md).
+    /// Returns the new localisation, or `first` when nothing moved.
+    pub fn compensate_rolling_shutter(
+        &mut self,
+        first: Localization,
+        opts: &SlamOptions,
+        timings: &mut StageTimings,
+    ) -> Result<Localization, SfmError> {
+        let w = angular_velocities(&first.poses, MAX_GAP_S);
+        let Some(moved) = self.move_observations(&w, opts.refine.rolling_shutter)? else { return Ok(first) };
+        self.global_refine(GlobalBaTolerance::Periodic, opts, timings)?;
+        if moved == 0 {
+            return Ok(first);
+        }
+        self.global_refine(GlobalBaTolerance::RollingShutter, opts, timings)?;
+        self.rec.update_point_errors()?;
+        self.localize_all(opts, timings)
+    }
+
+    /// Moves every keyframe observation and record of a frame with a
+    /// velocity to the middle-row time, from its measured position (so a
+    /// second call does not compound corrections). Returns the number of
+    /// keyframe observations moved; `None` without a readout or a map.
+    fn move_observations(
+        &mut self,
+        velocities: &HashMap<usize, Vec3>,
+        readout: f64,
+    ) -> Result<Option<usize>, SfmError> {
+        if readout == 0.0 || self.rec.num_registered_images() < 2 {
+            return Ok(None);
+        }
+        let camera = self.camera()?.clone();
+        let mut moved = 0;
+        for kf in &self.keyframes {
+            let Some(w) = velocities.get(&kf.data.index()) else { continue };
+            if !self.rec.image(kf.image_id).is_some_and(|i| i.registered) {
+                continue;
+            }
+            for (k, px) in kf.data.pixels.iter().enumerate() {
+                if let Some((fixed, _)) = compensate(&camera, px, w, readout) {
+                    self.rec.set_point2d_xy(kf.image_id, k as u32, fixed)?;
+                    moved += 1;
+                }
+            }
+        }
+        for r in &mut self.records {
+            let Some(w) = velocities.get(&r.frame.index) else { continue };
+            for o in &mut r.obs {
+                let px = camera.img_from_normalized(&o.measured);
+                if let Some((_, n)) = compensate(&camera, &px, w, readout) {
+                    o.normalized = n;
+                }
+            }
+        }
+        tracing::debug!(
+            "map {}: rolling shutter ({:.1} ms readout): {moved} keyframe observations moved, {} frames with a velocity",
+            self.index,
+            1e3 * readout,
+            velocities.len()
+        );
+        Ok(Some(moved))
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -80,9 +162,7 @@ mod tests {
 
     fn pose(index: usize, t: f64, w: &Vec3) -> FramePose {
         FramePose {
-            index,
-            timestamp: t,
-            name: format!("{index}"),
+            frame: crate::frame::FrameId { index, timestamp: t, name: format!("{index}") },
             cam_from_world: Rigid3::new(Quat::from_scaled_axis(w * t), Vec3::zeros()),
             keyframe: false,
         }
@@ -101,7 +181,7 @@ mod tests {
         // frames beside it out; the others keep their velocity.
         let mut gappy = poses.clone();
         for p in &mut gappy[5..] {
-            p.timestamp += 2.0;
+            p.frame.timestamp += 2.0;
         }
         let v = angular_velocities(&gappy, 0.5);
         assert!(!v.contains_key(&4) && !v.contains_key(&5), "{:?}", v.keys());

@@ -25,7 +25,7 @@ use colslam_estimators::{
 use colslam_geometry::{Mat3, Rigid3, Vec2, Vec3};
 use serde_json::{Value, json};
 
-use super::features::{machine, median, run_peer};
+use crate::features::{machine, median, run_peer};
 
 /// Focal length (px) of the synthetic camera.
 const FOCAL: f64 = 500.0;

@@ -1,0 +1,228 @@
+//! The initial pair (paper 3.3): COLMAP's `FindInitialImagePair` and
+//! `RegisterInitialImagePair`, adapted to a window of video frames.
+
+use super::state::{Keyframe, Mapper, keypoint_sigmas};
+use crate::frame::FrameData;
+use crate::options::{GlobalBaTolerance, INIT_TWO_VIEW_TRIALS, SlamOptions, VERIFY_MAX_ERROR_PX, ransac_options};
+use crate::timing::{Stage, StageTimings};
+use colslam_camera::Camera;
+use colslam_estimators::{
+    RansacOptions, TwoViewConfig, TwoViewGeometry, TwoViewGeometryOptions, estimate_two_view_geometry,
+};
+use colslam_features::Match;
+use colslam_geometry::{Rigid3, Vec2};
+use colslam_scene::Image;
+use colslam_sfm::SfmError;
+use colslam_sfm::triangulator::triangulate_image;
+use std::collections::HashMap;
+
+/// Matches between frames of the initialisation window, by window indices
+/// `(i, j)` with `i < j` (query = `i`).
+pub type PairMatches = HashMap<(usize, usize), Vec<Match>>;
+
+/// A new map and the window indices of its initial pair (earlier first).
+pub type Initialized = (Mapper, usize, usize);
+
+/// Two-view geometry between two frames' matched keypoints (`query` side
+/// first), with at most `max_trials` RANSAC trials per model.
+pub fn two_view(
+    a: &FrameData,
+    b: &FrameData,
+    matches: &[Match],
+    focal: f64,
+    seed: u64,
+    max_trials: usize,
+) -> Option<TwoViewGeometry> {
+    let x1: Vec<Vec2> = matches.iter().filter_map(|m| a.normalized.get(m.query as usize).copied()).collect();
+    let x2: Vec<Vec2> = matches.iter().filter_map(|m| b.normalized.get(m.train as usize).copied()).collect();
+    if x1.len() != matches.len() || x2.len() != matches.len() {
+        return None;
+    }
+    let opts = TwoViewGeometryOptions {
+        ransac: RansacOptions { confidence: 0.999, max_trials, ..ransac_options(VERIFY_MAX_ERROR_PX / focal, seed) },
+        ..TwoViewGeometryOptions::default()
+    };
+    estimate_two_view_geometry(&x1, &x2, &opts).ok()
+}
+
+/// Matches of the pair `(i, j)` in either order.
+fn count(pair_matches: &PairMatches, i: usize, j: usize) -> usize {
+    let key = if i < j { (i, j) } else { (j, i) };
+    pair_matches.get(&key).map_or(0, Vec::len)
+}
+
+/// First-image candidates: window indices by total matches to the others,
+/// most first (ties: earlier first).
+pub(crate) fn first_candidates(n: usize, pair_matches: &PairMatches) -> Vec<usize> {
+    let mut firsts: Vec<(usize, usize)> =
+        (0..n).map(|i| (i, (0..n).filter(|&j| j != i).map(|j| count(pair_matches, i, j)).sum())).collect();
+    firsts.sort_by(|a, b| b.1.cmp(&a.1).then(a.0.cmp(&b.0)));
+    firsts.into_iter().map(|(i, _)| i).collect()
+}
+
+/// Second-image candidates for `first`: the frames matched at least
+/// `min_inliers` times, farthest in time first (ties: earlier first).
+///
+/// Video: the frames with the most matches are the nearest, with the least
+/// parallax; among those matched well enough every one is tried, farthest
+/// first: in a photo sequence with wide baselines the far frames share no
+/// view, and raw match counts (which the ratio test leaves high among
+/// thousands of keypoints) do not tell.
+pub(crate) fn second_candidates(n: usize, first: usize, pair_matches: &PairMatches, min_inliers: usize) -> Vec<usize> {
+    let mut seconds: Vec<usize> =
+        (0..n).filter(|&j| j != first && count(pair_matches, first, j) >= min_inliers).collect();
+    seconds.sort_by(|&a, &b| b.abs_diff(first).cmp(&a.abs_diff(first)).then(a.cmp(&b)));
+    seconds
+}
+
+/// The verified relative pose and inlier matches of a candidate pair, when
+/// its geometry allows an initialisation: enough inliers, motion that is
+/// neither planar-only nor pure rotation, and a median triangulation angle
+/// of at least `init_min_tri_angle`.
+fn verified_pair(
+    a: &FrameData,
+    b: &FrameData,
+    matches: &[Match],
+    focal: f64,
+    opts: &SlamOptions,
+) -> Option<(Rigid3, Vec<Match>, f64)> {
+    let tvg = two_view(a, b, matches, focal, opts.seed, INIT_TWO_VIEW_TRIALS)?;
+    tracing::trace!(
+        "init candidate {} / {}: {:?}, {} inliers of {}, median angle {:?}",
+        a.index(),
+        b.index(),
+        tvg.config,
+        tvg.num_inliers,
+        matches.len(),
+        tvg.median_tri_angle_deg
+    );
+    let motion_ok = matches!(tvg.config, TwoViewConfig::Calibrated | TwoViewConfig::Planar);
+    let angle_ok = tvg.median_tri_angle_deg.is_some_and(|a| a >= opts.init.init_min_tri_angle);
+    let rel = tvg.cam2_from_cam1?;
+    if !motion_ok || !angle_ok || tvg.num_inliers < opts.init.init_min_inliers {
+        return None;
+    }
+    let inliers = matches.iter().zip(&tvg.inlier_mask).filter(|(_, k)| **k).map(|(m, _)| *m).collect();
+    Some((rel, inliers, tvg.median_tri_angle_deg.unwrap_or(0.0)))
+}
+
+impl Mapper {
+    /// Tries to start a map from the initialisation window (paper 3.3): the
+    /// first image has the most correspondences to the others, the second
+    /// has many correspondences to it and enough motion; triangulate, global
+    /// refinement; if too few points survive, the next candidate pair is
+    /// tried. Returns the map and the window indices of its two images.
+    pub fn initialize(
+        index: usize,
+        window: &[FrameData],
+        pair_matches: &PairMatches,
+        camera: &Camera,
+        opts: &SlamOptions,
+        timings: &mut StageTimings,
+    ) -> Result<Option<Initialized>, SfmError> {
+        let n = window.len();
+        let focal = 0.5 * (camera.focal_x() + camera.focal_y());
+        // COLMAP tries several first images; two are enough to leave a
+        // clearly bad window quickly.
+        for first in first_candidates(n, pair_matches).into_iter().take(2) {
+            for second in second_candidates(n, first, pair_matches, opts.init.init_min_inliers) {
+                let (i, j) = if first < second { (first, second) } else { (second, first) };
+                let Some(matches) = pair_matches.get(&(i, j)) else { continue };
+                let Some((rel, inliers, angle)) = verified_pair(&window[i], &window[j], matches, focal, opts) else {
+                    continue;
+                };
+                let map = Self::from_pair(index, (&window[i], &window[j]), &inliers, rel, camera, opts, timings)?;
+                let points = map.rec.num_points3d();
+                let (a, b) = (window[i].index(), window[j].index());
+                if points >= opts.init.init_min_points {
+                    tracing::info!(
+                        "map {index} initialised from frames {a} and {b}: {points} points, median angle {angle:.2} deg"
+                    );
+                    return Ok(Some((map, i, j)));
+                }
+                tracing::debug!("initial pair {a} / {b} kept only {points} points");
+            }
+        }
+        Ok(None)
+    }
+
+    /// A map of two keyframes: `pair.0` at the origin, `pair.1` at
+    /// `b_from_a`, their inlier matches triangulated and refined globally.
+    fn from_pair(
+        index: usize,
+        pair: (&FrameData, &FrameData),
+        inliers: &[Match],
+        b_from_a: Rigid3,
+        camera: &Camera,
+        opts: &SlamOptions,
+        timings: &mut StageTimings,
+    ) -> Result<Mapper, SfmError> {
+        let mut map = Mapper::empty(index, camera);
+        let mut ids = Vec::new();
+        for (data, pose) in [(pair.0, Rigid3::identity()), (pair.1, b_from_a)] {
+            let id = map.rec.next_image_id();
+            let mut img = Image::new(id, data.id.name.clone(), map.camera_id, data.pixels.clone());
+            img.cam_from_world = pose;
+            map.rec.add_image(img)?;
+            map.rec.register_image(id)?;
+            map.graph.add_image(id, data.len())?;
+            ids.push(id);
+        }
+        let pairs: Vec<(u32, u32)> = inliers.iter().map(|m| (m.query, m.train)).collect();
+        map.graph.add_correspondences(ids[0], ids[1], &pairs)?;
+        let tri = opts.mapper.triangulator();
+        timings.time(Stage::Triangulation, || triangulate_image(&mut map.rec, &map.graph, ids[0], &tri))?;
+        map.keyframes = vec![
+            Keyframe { image_id: ids[0], data: pair.0.clone() },
+            Keyframe { image_id: ids[1], data: pair.1.clone() },
+        ];
+        map.initial_frames = (pair.0.index(), pair.1.index());
+        if opts.mapper.weight_by_level {
+            let m = std::sync::Arc::make_mut(&mut map.sigmas);
+            m.insert(ids[0], keypoint_sigmas(pair.0));
+            m.insert(ids[1], keypoint_sigmas(pair.1));
+        }
+        map.global_refine(GlobalBaTolerance::Converged, opts, timings)?;
+        Ok(map)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn matches(n: usize) -> Vec<Match> {
+        (0..n as u32).map(|k| Match { query: k, train: k, distance: 0.0 }).collect()
+    }
+
+    #[test]
+    fn first_image_has_the_most_matches_and_ties_go_to_the_earlier() {
+        let mut pm = PairMatches::new();
+        pm.insert((0, 1), matches(10));
+        pm.insert((1, 2), matches(30));
+        pm.insert((0, 2), matches(5));
+        // Totals: 0 -> 15, 1 -> 40, 2 -> 35.
+        assert_eq!(first_candidates(3, &pm), vec![1, 2, 0]);
+        let mut tie = PairMatches::new();
+        tie.insert((0, 1), matches(10));
+        assert_eq!(first_candidates(3, &tie), vec![0, 1, 2]);
+    }
+
+    #[test]
+    fn second_images_are_the_well_matched_ones_farthest_first() {
+        let mut pm = PairMatches::new();
+        for j in 1..6 {
+            pm.insert((0, j), matches(if j == 3 { 50 } else { 120 }));
+        }
+        pm.insert((2, 4), matches(500));
+        // Frame 3 has too few matches to frame 0; the others come farthest first.
+        assert_eq!(second_candidates(6, 0, &pm, 100), vec![5, 4, 2, 1]);
+        // Around a middle frame, equal distances go to the earlier.
+        let mut mid = PairMatches::new();
+        for j in [0, 1, 3, 4] {
+            let key = if j < 2 { (j, 2) } else { (2, j) };
+            mid.insert(key, matches(100));
+        }
+        assert_eq!(second_candidates(5, 2, &mid, 100), vec![0, 4, 1, 3]);
+    }
+}

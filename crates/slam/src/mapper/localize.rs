@@ -1,0 +1,190 @@
+//! Localisation of every frame against a finished map (beyond the paper,
+//! which keeps only keyframes), and the optional refinement with all of them
+//! (COLMAP registers every image).
+
+use super::state::Mapper;
+use crate::frame::{FramePose, FrameRecord};
+use crate::options::{GlobalBaTolerance, SlamOptions};
+use crate::timing::{Stage, StageTimings};
+use colslam_estimators::estimate_absolute_pose;
+use colslam_geometry::{Vec2, Vec3};
+use colslam_scene::{Image, ImageId, Point3DId, TrackElement};
+use colslam_sfm::SfmError;
+use rayon::prelude::*;
+use std::collections::{HashMap, HashSet};
+
+/// A localised frame's PnP inliers: (normalised keypoint, 3D point).
+pub type FrameInliers = Vec<(Vec2, Point3DId)>;
+
+/// What [`Mapper::localize_all`] returns.
+#[derive(Debug, Clone, Default)]
+pub struct Localization {
+    /// Poses of keyframes and localised frames, one per frame, in frame order.
+    pub poses: Vec<FramePose>,
+    /// Records that could not be localised, in frame order.
+    pub failed: Vec<crate::frame::FrameId>,
+    /// Each localised frame's inliers, by frame index.
+    pub inliers: HashMap<usize, FrameInliers>,
+}
+
+/// One record per frame: a frame can hold several (tracked by two maps that
+/// were merged, tracked backwards and relocalised), whose observations are
+/// pooled; a frame promoted anywhere is a keyframe.
+pub(crate) fn pool_records(records: &[FrameRecord]) -> Vec<FrameRecord> {
+    let mut merged: Vec<FrameRecord> = Vec::new();
+    let mut slot: HashMap<usize, usize> = HashMap::new();
+    for r in records {
+        match slot.get(&r.frame.index) {
+            Some(&k) => {
+                merged[k].obs.extend_from_slice(&r.obs);
+                merged[k].promoted |= r.promoted;
+            }
+            None => {
+                slot.insert(r.frame.index, merged.len());
+                merged.push(r.clone());
+            }
+        }
+    }
+    merged
+}
+
+impl Mapper {
+    /// Poses of the registered keyframes, in keyframe order.
+    fn keyframe_poses(&self) -> Vec<FramePose> {
+        self.keyframes
+            .iter()
+            .filter_map(|k| {
+                let img = self.rec.image(k.image_id)?;
+                img.registered.then(|| FramePose {
+                    frame: k.data.id.clone(),
+                    cam_from_world: img.cam_from_world,
+                    keyframe: true,
+                })
+            })
+            .collect()
+    }
+
+    /// Poses of every keyframe and every localised non-keyframe, in frame
+    /// order, and the records that could not be localised.
+    pub fn localize_all(&self, opts: &SlamOptions, timings: &mut StageTimings) -> Result<Localization, SfmError> {
+        let focal = self.focal()?;
+        let mut poses = self.keyframe_poses();
+        let keyframe_frames: HashSet<usize> = poses.iter().map(|p| p.frame.index).collect();
+        let started = std::time::Instant::now();
+        let merged = pool_records(&self.records);
+        let results: Vec<(usize, Option<(FramePose, FrameInliers)>)> = merged
+            .par_iter()
+            .enumerate()
+            .filter(|(_, r)| {
+                !r.promoted && !keyframe_frames.contains(&r.frame.index) && opts.refine.localize_all_frames
+            })
+            .map(|(i, r)| (i, self.localize(r, focal, opts)))
+            .collect();
+        timings.add(Stage::Localization, started.elapsed());
+        let mut out = Localization::default();
+        for (i, res) in results {
+            match res {
+                Some((p, inl)) => {
+                    out.inliers.insert(p.frame.index, inl);
+                    poses.push(p);
+                }
+                None => out.failed.push(merged[i].frame.clone()),
+            }
+        }
+        // One pose per frame (a keyframe first: the sort is stable and
+        // keyframes were pushed first).
+        poses.sort_by_key(|p| p.frame.index);
+        poses.dedup_by_key(|p| p.frame.index);
+        out.failed.sort_by_key(|f| f.index);
+        out.poses = poses;
+        Ok(out)
+    }
+
+    /// The pose of one record by PnP against the map's points, with its
+    /// inliers; `None` when too few correspondences or PnP fails.
+    pub(crate) fn localize(
+        &self,
+        record: &FrameRecord,
+        focal: f64,
+        opts: &SlamOptions,
+    ) -> Option<(FramePose, FrameInliers)> {
+        let mut used_kp = HashSet::new();
+        let mut used_pt = HashSet::new();
+        let (mut p2, mut p3): (Vec<Vec2>, Vec<Vec3>) = (Vec::new(), Vec::new());
+        let mut pids = Vec::new();
+        for o in &record.obs {
+            let Some(img) = self.rec.image(o.keyframe) else { continue };
+            if !img.registered {
+                continue;
+            }
+            let Some(pid) = img.points2d.get(o.keyframe_kp as usize).and_then(|p| p.point3d_id) else { continue };
+            let Some(p) = self.rec.point3d(pid) else { continue };
+            if used_kp.contains(&o.frame_kp) || used_pt.contains(&pid) {
+                continue;
+            }
+            used_kp.insert(o.frame_kp);
+            used_pt.insert(pid);
+            p2.push(o.normalized);
+            p3.push(p.xyz);
+            pids.push(pid);
+        }
+        if p2.len() < opts.mapper.abs_pose_min_inliers {
+            return None;
+        }
+        let pose_opts = opts.mapper.absolute_pose(focal, opts.seed ^ record.frame.index as u64);
+        let pose = estimate_absolute_pose(&p2, &p3, &pose_opts).ok()?;
+        let inliers =
+            p2.iter().zip(&pids).zip(&pose.inlier_mask).filter(|(_, m)| **m).map(|((n, pid), _)| (*n, *pid)).collect();
+        let fp = FramePose { frame: record.frame.clone(), cam_from_world: pose.cam_from_world, keyframe: false };
+        Some((fp, inliers))
+    }
+
+    /// Adds every localised non-keyframe to the model with its PnP inlier
+    /// observations and bundle adjusts everything together (as COLMAP
+    /// registers every image); the frames' poses are then read back from the
+    /// model. Frames are added under their own names, so the written model
+    /// holds every localised frame.
+    pub fn refine_with_all_frames(
+        &mut self,
+        poses: &mut [FramePose],
+        inliers: &HashMap<usize, FrameInliers>,
+        opts: &SlamOptions,
+        timings: &mut StageTimings,
+    ) -> Result<(), SfmError> {
+        let camera = self.camera()?.clone();
+        let mut added: HashMap<usize, ImageId> = HashMap::new();
+        for p in poses.iter().filter(|p| !p.keyframe) {
+            let Some(obs) = inliers.get(&p.frame.index) else { continue };
+            let live: Vec<&(Vec2, Point3DId)> =
+                obs.iter().filter(|(_, pid)| self.rec.point3d(*pid).is_some()).collect();
+            if live.len() < opts.mapper.abs_pose_min_inliers {
+                continue;
+            }
+            let id = self.rec.next_image_id();
+            let pixels: Vec<Vec2> = live.iter().map(|(n, _)| camera.img_from_normalized(n)).collect();
+            let mut img = Image::new(id, p.frame.name.clone(), self.camera_id, pixels);
+            img.cam_from_world = p.cam_from_world;
+            self.rec.add_image(img)?;
+            self.rec.register_image(id)?;
+            for (k, (_, pid)) in live.iter().enumerate() {
+                let taken = self.rec.point3d(*pid).is_none_or(|pt| pt.track.iter().any(|e| e.image_id == id));
+                if !taken {
+                    self.rec.add_observation(*pid, TrackElement::new(id, k as u32))?;
+                }
+            }
+            added.insert(p.frame.index, id);
+        }
+        if added.is_empty() {
+            return Ok(());
+        }
+        self.global_refine(GlobalBaTolerance::Converged, opts, timings)?;
+        let kf_ids: HashMap<usize, ImageId> = self.keyframes.iter().map(|k| (k.data.index(), k.image_id)).collect();
+        for p in poses.iter_mut() {
+            let id = if p.keyframe { kf_ids.get(&p.frame.index) } else { added.get(&p.frame.index) };
+            if let Some(img) = id.and_then(|id| self.rec.image(*id)).filter(|i| i.registered) {
+                p.cam_from_world = img.cam_from_world;
+            }
+        }
+        Ok(())
+    }
+}

@@ -1,0 +1,27 @@
+//! The mapper: one map of a run, a COLMAP reconstruction and correspondence
+//! graph grown keyframe by keyframe (paper 3.3-3.6), and the records of the
+//! non-keyframes that are localised against it at the end.
+//!
+//! As COLMAP's `IncrementalMapper`, it offers the steps and keeps its state
+//! private; the tracking policy that decides their order lives in
+//! the pipeline (`pipeline.rs`). The steps, one file each:
+//! - [`Mapper::initialize`] (`init.rs`): the initial pair search;
+//! - [`Mapper::register_keyframe`] (`register.rs`): registration,
+//!   triangulation, local refinement, local filtering and deregistration;
+//! - [`Mapper::global_refine`] and [`Mapper::needs_global_refine`] (here): the
+//!   global BA schedule;
+//! - [`Mapper::localize_all`] and [`Mapper::refine_with_all_frames`]
+//!   (`localize.rs`);
+//! - [`Mapper::merge`] (`merge.rs`): joining a second map;
+//! - rolling-shutter compensation (`rolling_shutter.rs`).
+
+pub(crate) mod init;
+mod localize;
+mod merge;
+mod register;
+pub mod rolling_shutter;
+mod state;
+
+pub use localize::{FrameInliers, Localization};
+pub use register::{RegisterFailure, Registration};
+pub use state::{Keyframe, Mapper, ORB_LEVEL_SCALE, keypoint_sigmas};

@@ -1,0 +1,271 @@
+//! The mapper's state and the steps that only read or reset it: accessors,
+//! filtering, the global refinement schedule, colouring.
+
+use crate::frame::{FrameData, FrameRecord};
+use crate::options::{GlobalBaTolerance, SlamOptions};
+use crate::timing::{Stage, StageTimings};
+use colslam_camera::Camera;
+use colslam_scene::{CameraId, ImageId, Point3DId, Reconstruction, SceneError};
+use colslam_sfm::bundle::{KeypointSigmas, adjust_global};
+use colslam_sfm::triangulator::complete_and_merge_all;
+use colslam_sfm::{CorrespondenceGraph, SfmError};
+use std::collections::HashMap;
+
+/// A registered keyframe and its features.
+#[derive(Debug, Clone)]
+pub struct Keyframe {
+    /// Its image id in the map.
+    pub image_id: ImageId,
+    /// Its features.
+    pub data: FrameData,
+}
+
+/// One map.
+#[derive(Debug, Clone)]
+pub struct Mapper {
+    /// Index among the run's maps.
+    pub(super) index: usize,
+    /// The reconstruction.
+    pub(super) rec: Reconstruction,
+    /// The correspondence graph between keyframes.
+    pub(super) graph: CorrespondenceGraph,
+    /// The camera's id in `rec`: the one camera of the run, refined there by
+    /// bundle adjustment when intrinsics are refined.
+    pub(super) camera_id: CameraId,
+    /// Registered keyframes. Their order defines the reference keyframe (the
+    /// last) and the recent ones a new keyframe is matched against: frame
+    /// order, except while tracking backwards ([`Self::order_keyframes_by_distance_to`]).
+    pub(super) keyframes: Vec<Keyframe>,
+    /// Non-keyframes to localise.
+    pub(super) records: Vec<FrameRecord>,
+    /// Frame indices of the initial pair.
+    pub(super) initial_frames: (usize, usize),
+    /// Registered images and points at the last global BA.
+    pub(super) last_global: (usize, usize),
+    /// Keypoint standard deviations (px) of the keyframes, for weighting
+    /// bundle adjustment by pyramid level.
+    pub(super) sigmas: KeypointSigmas,
+}
+
+/// Scale between ORB pyramid levels: a keypoint found at octave `o` is
+/// located to about `ORB_LEVEL_SCALE^o` pixels (ORB-SLAM's level sigma).
+pub const ORB_LEVEL_SCALE: f32 = 1.2;
+
+/// The standard deviation of each keypoint of a frame (by pyramid level).
+pub fn keypoint_sigmas(data: &FrameData) -> Vec<f32> {
+    data.features.keypoints.iter().map(|k| ORB_LEVEL_SCALE.powi(i32::from(k.octave))).collect()
+}
+
+impl Mapper {
+    /// An empty map for `camera` (COLMAP pixel convention).
+    pub(super) fn empty(index: usize, camera: &Camera) -> Self {
+        let mut rec = Reconstruction::new();
+        let camera_id = rec.add_camera(camera.clone());
+        Self {
+            index,
+            rec,
+            graph: CorrespondenceGraph::new(),
+            camera_id,
+            keyframes: Vec::new(),
+            records: Vec::new(),
+            initial_frames: (0, 0),
+            last_global: (0, 0),
+            sigmas: KeypointSigmas::default(),
+        }
+    }
+
+    /// Index among the run's maps (order of creation).
+    pub fn index(&self) -> usize {
+        self.index
+    }
+
+    /// The reconstruction.
+    pub fn reconstruction(&self) -> &Reconstruction {
+        &self.rec
+    }
+
+    /// The correspondence graph between keyframes.
+    pub fn graph(&self) -> &CorrespondenceGraph {
+        &self.graph
+    }
+
+    /// The run's camera as the map holds it (refined when intrinsics are).
+    pub fn camera(&self) -> Result<&Camera, SceneError> {
+        self.rec.camera(self.camera_id).map(|c| &c.camera).ok_or(SceneError::UnknownCamera(self.camera_id))
+    }
+
+    /// Mean focal length of the map's camera, pixels.
+    pub(crate) fn focal(&self) -> Result<f64, SceneError> {
+        let c = self.camera()?;
+        Ok(0.5 * (c.focal_x() + c.focal_y()))
+    }
+
+    /// Registered keyframes, in the current order (frame order outside a
+    /// backward pass).
+    pub fn keyframes(&self) -> &[Keyframe] {
+        &self.keyframes
+    }
+
+    /// The reference keyframe new frames are matched to: the last in order.
+    pub fn last_keyframe(&self) -> Option<&Keyframe> {
+        self.keyframes.last()
+    }
+
+    /// Records of the non-keyframes.
+    pub fn records(&self) -> &[FrameRecord] {
+        &self.records
+    }
+
+    /// Frame indices of the initial pair.
+    pub fn initial_frames(&self) -> (usize, usize) {
+        self.initial_frames
+    }
+
+    /// Adds the record of a non-keyframe; returns its index.
+    pub fn add_record(&mut self, record: FrameRecord) -> usize {
+        self.records.push(record);
+        self.records.len() - 1
+    }
+
+    /// The record at `index` (from [`Self::add_record`]).
+    pub fn record_mut(&mut self, index: usize) -> Option<&mut FrameRecord> {
+        self.records.get_mut(index)
+    }
+
+    /// Adds records of frames to localise, pooling the observations of a
+    /// frame that already has one.
+    pub fn add_records(&mut self, extra: Vec<FrameRecord>) {
+        let mut by_index: HashMap<usize, usize> =
+            self.records.iter().enumerate().map(|(i, r)| (r.frame.index, i)).collect();
+        for r in extra {
+            match by_index.get(&r.frame.index) {
+                Some(&i) => self.records[i].obs.extend(r.obs),
+                None => {
+                    by_index.insert(r.frame.index, self.records.len());
+                    self.records.push(r);
+                }
+            }
+        }
+    }
+
+    /// Orders the keyframes by distance in time to frame `index`, nearest
+    /// last, so that it becomes the reference and the nearest ones are those
+    /// registration matches against (tracking backwards).
+    pub fn order_keyframes_by_distance_to(&mut self, index: usize) {
+        self.keyframes.sort_by(|a, b| {
+            b.data
+                .index()
+                .abs_diff(index)
+                .cmp(&a.data.index().abs_diff(index))
+                .then(a.data.index().cmp(&b.data.index()))
+        });
+    }
+
+    /// Restores frame order of the keyframes.
+    pub fn order_keyframes_by_time(&mut self) {
+        self.keyframes.sort_by_key(|k| k.data.index());
+    }
+
+    /// Filters the given points (all when `None`) by depth, reprojection
+    /// error and triangulation angle (COLMAP's `FilterPoints`); returns the
+    /// number of points deleted.
+    pub fn filter(&mut self, points: Option<&[Point3DId]>, opts: &SlamOptions) -> Result<usize, SfmError> {
+        // Bundle adjustment gives points behind a camera zero cost (as
+        // COLMAP's cost functions do), so those observations go first.
+        let d = self.rec.filter_negative_depth(points)?;
+        let a = self.rec.filter_by_reprojection_error(opts.mapper.max_reproj_error, points)?;
+        let b = self.rec.filter_by_triangulation_angle(opts.mapper.min_tri_angle, points)?;
+        tracing::trace!(
+            "filter: depth removed {} observations, reprojection {} observations / {} points, angle {} points",
+            d.observations_removed,
+            a.observations_removed,
+            a.points_deleted,
+            b.points_deleted
+        );
+        Ok(d.points_deleted + a.points_deleted + b.points_deleted)
+    }
+
+    /// Global refinement (paper 3.6): global bundle adjustment to
+    /// `tolerance`, then normalisation, merge/complete of all tracks and
+    /// filtering. Resets the growth counters of [`Self::needs_global_refine`].
+    pub fn global_refine(
+        &mut self,
+        tolerance: GlobalBaTolerance,
+        opts: &SlamOptions,
+        timings: &mut StageTimings,
+    ) -> Result<colslam_optim::BaReport, SfmError> {
+        let ba = opts.mapper.global_ba(tolerance);
+        let refine = opts.refine.refine_intrinsics;
+        let report = timings.time(Stage::GlobalBa, || adjust_global(&mut self.rec, refine, &ba))?;
+        tracing::debug!(
+            "map {}: global BA over {} images / {} points: cost {:.4e} -> {:.4e} in {} iterations ({:?})",
+            self.index,
+            self.rec.num_registered_images(),
+            self.rec.num_points3d(),
+            report.initial_cost,
+            report.final_cost,
+            report.iterations,
+            report.termination
+        );
+        self.rec.normalize(&colslam_scene::NormalizeOptions::default())?;
+        let tri = opts.mapper.triangulator();
+        timings.time(Stage::Triangulation, || complete_and_merge_all(&mut self.rec, &self.graph, &tri))?;
+        let removed = self.filter(None, opts)?;
+        tracing::debug!("map {}: global filter removed {removed} points, {} left", self.index, self.rec.num_points3d());
+        self.last_global = (self.rec.num_registered_images(), self.rec.num_points3d());
+        Ok(report)
+    }
+
+    /// True when registered keyframes or points grew by
+    /// `global_ba_growth` since the last global refinement (COLMAP's
+    /// schedule).
+    pub fn needs_global_refine(&self, opts: &SlamOptions) -> bool {
+        let imgs = self.rec.num_registered_images() as f64;
+        let pts = self.rec.num_points3d() as f64;
+        let growth = opts.mapper.global_ba_growth;
+        imgs >= growth * self.last_global.0 as f64 || pts >= growth * self.last_global.1 as f64
+    }
+
+    /// Final global refinement and point errors at the end of the run; with
+    /// rolling-shutter compensation to follow, only to the periodic
+    /// tolerance (the compensation ends with its own converged BA).
+    pub fn finalize(&mut self, opts: &SlamOptions, timings: &mut StageTimings) -> Result<(), SfmError> {
+        if self.rec.num_registered_images() >= 2 {
+            let tolerance = if opts.refine.rolling_shutter > 0.0 {
+                GlobalBaTolerance::Periodic
+            } else {
+                GlobalBaTolerance::Converged
+            };
+            self.global_refine(tolerance, opts, timings)?;
+        }
+        self.rec.update_point_errors()?;
+        Ok(())
+    }
+
+    /// Colours each point with the mean keypoint colour over its track.
+    pub fn color_points(&mut self) {
+        let colors: HashMap<ImageId, &Vec<[u8; 3]>> =
+            self.keyframes.iter().map(|k| (k.image_id, &k.data.colors)).collect();
+        let mut updates = Vec::new();
+        for (pid, p) in self.rec.points3d() {
+            let mut sum = [0u32; 3];
+            let mut n = 0u32;
+            for el in &p.track {
+                if let Some(c) = colors.get(&el.image_id).and_then(|c| c.get(el.point2d_idx as usize)) {
+                    for k in 0..3 {
+                        sum[k] += u32::from(c[k]);
+                    }
+                    n += 1;
+                }
+            }
+            // The mean of u8 values fits in u8.
+            if let (Some(r), Some(g), Some(b)) = (sum[0].checked_div(n), sum[1].checked_div(n), sum[2].checked_div(n)) {
+                updates.push((pid, [r as u8, g as u8, b as u8]));
+            }
+        }
+        for (pid, c) in updates {
+            // Every id comes from the loop above over existing points.
+            let _ = self.rec.set_point3d_color(pid, c);
+        }
+    }
+}

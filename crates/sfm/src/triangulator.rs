@@ -313,7 +313,14 @@ fn create(
     {
         return Ok(0);
     }
-    free.truncate(MAX_CREATE_VIEWS);
+    // Bound the pair search, but keep the last view: the callers put the
+    // keypoint being triangulated there, and a point created without it
+    // would leave that keypoint untriangulated.
+    if free.len() > MAX_CREATE_VIEWS {
+        let last = free.len() - 1;
+        free.swap(MAX_CREATE_VIEWS - 1, last);
+        free.truncate(MAX_CREATE_VIEWS);
+    }
     let max_err = max_angle_error_deg.to_radians();
     let tri_opts = TriangulationOptions {
         min_tri_angle_deg: opts.min_angle_deg,
@@ -531,6 +538,7 @@ pub fn retriangulate(
     let focus: Option<HashSet<ImageId>> = images.map(|s| s.iter().copied().collect());
     let pairs: Vec<(ImageId, ImageId, usize)> =
         graph.image_pairs().filter(|(a, b, _)| focus.as_ref().is_none_or(|f| f.contains(a) || f.contains(b))).collect();
+    let re_opts = TriangulatorOptions { continue_max_angle_error_deg: opts.re_max_angle_error_deg, ..opts.clone() };
     let mut report = TriangulationReport::default();
     for (a, b, num_corrs) in pairs {
         let registered = |id| rec.image(id).is_some_and(|i| i.registered);
@@ -551,15 +559,24 @@ pub fn retriangulate(
                 break;
             }
             let mut created = 0;
-            for (i, _) in &matches {
-                let views = find_views(rec, graph, a, *i, opts.max_transitivity);
+            for (i, j) in &matches {
+                let mut views = find_views(rec, graph, a, *i, opts.max_transitivity);
                 let Some(reference) = view_of(rec, TrackElement::new(a, *i)) else { continue };
                 if reference.point3d.is_none() {
-                    let re_opts = TriangulatorOptions {
-                        continue_max_angle_error_deg: opts.re_max_angle_error_deg,
-                        ..opts.clone()
-                    };
                     report.continued += continue_track(rec, &reference, &views, &re_opts)?;
+                }
+                // The other end too: COLMAP continues whichever keypoint of
+                // the match lacks a point (for the newest image, usually `b`).
+                if let Some(other) = view_of(rec, TrackElement::new(b, *j))
+                    && other.point3d.is_none()
+                {
+                    let other_views = find_views(rec, graph, b, *j, opts.max_transitivity);
+                    let added = continue_track(rec, &other, &other_views, &re_opts)?;
+                    if added > 0 {
+                        report.continued += added;
+                        // `views` still lists that keypoint as free.
+                        views = find_views(rec, graph, a, *i, opts.max_transitivity);
+                    }
                 }
                 let Some(reference) = view_of(rec, TrackElement::new(a, *i)) else { continue };
                 let mut candidates = views;
@@ -690,5 +707,37 @@ mod tests {
             Err(SfmError::UnknownImage(_))
         ));
         let _ = &mut graph;
+    }
+
+    #[test]
+    fn angular_error_is_zero_on_the_ray_and_pi_behind_the_camera() {
+        let (rec, _, pts) = scene(2, 3);
+        let v = view_of(&rec, TrackElement::new(ImageId(1), 0)).unwrap();
+        // acos near 1 resolves angles to about 1e-8 rad only.
+        assert!(angular_error(&v, &pts[0]) < 1e-7);
+        // Any point on the ray, near or far, has no error.
+        let centre = rec.image(ImageId(1)).unwrap().projection_center();
+        assert!(angular_error(&v, &(centre + (pts[0] - centre) * 3.0)) < 1e-7);
+        // The mirrored point behind the camera is as wrong as can be.
+        assert_eq!(angular_error(&v, &(centre - (pts[0] - centre))), std::f64::consts::PI);
+        // A point 0.1 rad off the ray, seen from the centre.
+        let to_p = pts[0] - centre;
+        let side = to_p.cross(&Vec3::new(0.0, 1.0, 0.0)).normalize() * to_p.norm() * 0.1f64.tan();
+        assert!((angular_error(&v, &(pts[0] + side)) - 0.1).abs() < 1e-9);
+        // Unknown images and keypoints have no view.
+        assert!(view_of(&rec, TrackElement::new(ImageId(1), 3)).is_none());
+        assert!(view_of(&rec, TrackElement::new(ImageId(7), 0)).is_none());
+    }
+
+    #[test]
+    fn reprojection_error_is_infinite_where_nothing_projects() {
+        let (rec, _, pts) = scene(2, 3);
+        let el = TrackElement::new(ImageId(2), 1);
+        assert!(reprojection_error_px(&rec, el, &pts[1]) < 1e-9);
+        let centre = rec.image(ImageId(2)).unwrap().projection_center();
+        // Behind the camera: no pixel, even though the mirrored ray hits the keypoint.
+        assert_eq!(reprojection_error_px(&rec, el, &(centre - (pts[1] - centre))), f64::INFINITY);
+        assert_eq!(reprojection_error_px(&rec, TrackElement::new(ImageId(2), 9), &pts[1]), f64::INFINITY);
+        assert_eq!(reprojection_error_px(&rec, TrackElement::new(ImageId(9), 1), &pts[1]), f64::INFINITY);
     }
 }

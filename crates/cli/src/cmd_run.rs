@@ -3,38 +3,29 @@
 //! the progress bar and the printed summary.
 
 use anyhow::Result;
-use colslam_slam::run::{Hook, RunConfig, RunHooks, RunOutput, RunStart};
+use colslam_slam::run::{RunConfig, RunHooks, RunOutput, RunStart};
 use colslam_slam::{EventSink, RunReport};
+use colslam_viewer::chain_hooks;
 
-/// Both hooks, `a` first.
-fn chain<'a, T: 'a>(a: Option<Hook<'a, T>>, b: Option<Hook<'a, T>>) -> Option<Hook<'a, T>> {
-    match (a, b) {
-        (Some(mut a), Some(mut b)) => Some(Box::new(move |v: &T| {
-            a(v);
-            b(v);
+/// Calls `f` with the hooks of a progress bar over a run's frames (hidden
+/// with `quiet`), cleared when `f` returns.
+pub fn with_progress<R>(quiet: bool, f: impl FnOnce(RunHooks<'_>) -> R) -> R {
+    let pb = crate::logging::progress_bar(0, quiet, "frames");
+    let out = f(RunHooks {
+        on_start: Some(Box::new(|s: &RunStart| pb.set_length(s.frames.unwrap_or(0) as u64))),
+        after_frame: Some(Box::new(|slam: &colslam_slam::Slam| {
+            pb.inc(1);
+            pb.set_message(format!("{} kf", slam.num_keyframes()));
         })),
-        (a, b) => a.or(b),
-    }
+        ..RunHooks::default()
+    });
+    pb.finish_and_clear();
+    out
 }
 
 /// Runs the pipeline with `hooks` and a progress bar (hidden with `quiet`).
 pub fn run_with_progress(config: &RunConfig, quiet: bool, events: EventSink, hooks: RunHooks<'_>) -> Result<RunOutput> {
-    let pb = crate::logging::progress_bar(0, quiet, "frames");
-    let out = {
-        let bar_start: Hook<'_, RunStart> = Box::new(|s: &RunStart| pb.set_length(s.frames.unwrap_or(0) as u64));
-        let bar_frame: Hook<'_, colslam_slam::Slam> = Box::new(|slam: &colslam_slam::Slam| {
-            pb.inc(1);
-            pb.set_message(format!("{} kf", slam.num_keyframes()));
-        });
-        let hooks = RunHooks {
-            on_start: chain(hooks.on_start, Some(bar_start)),
-            after_frame: chain(hooks.after_frame, Some(bar_frame)),
-            ..hooks
-        };
-        colslam_slam::run::run(config, events, hooks)
-    };
-    pb.finish_and_clear();
-    Ok(out?)
+    Ok(with_progress(quiet, |bar| colslam_slam::run::run(config, events, chain_hooks(hooks, bar)))?)
 }
 
 /// A short summary table of a run.

@@ -6,10 +6,9 @@
 //! `run --view --view-exit` the process exits when the run ends instead (for
 //! scripts and tests).
 
-use crate::viewer_bridge::{RunShared, ViewController, run_live};
 use anyhow::{Context, Result};
 use colslam_slam::run::{RunConfig, RunOptions};
-use colslam_viewer::{DEFAULT_PORT, Viewer, ViewerOptions};
+use colslam_viewer::{DEFAULT_PORT, RunShared, ViewController, Viewer, ViewerOptions, run_live};
 use std::io::Write;
 use std::net::IpAddr;
 use std::path::PathBuf;
@@ -109,7 +108,9 @@ pub fn run_followed(config: &RunConfig, v: &RunViewArgs, quiet: bool) -> Result<
     // The page's Run button is refused while this run goes on (the flag of
     // a fresh `shared` is free; run_live releases it).
     shared.try_begin();
-    let outcome = run_live(config, quiet, &viewer.handle(), &shared, std::time::Instant::now())?;
+    let outcome = crate::cmd_run::with_progress(quiet, |bar| {
+        run_live(config, bar, &viewer.handle(), &shared, std::time::Instant::now())
+    })?;
     crate::cmd_run::print_outcome(config, &outcome);
     if v.view_exit {
         std::io::stdout().flush()?;

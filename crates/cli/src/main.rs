@@ -11,7 +11,6 @@ mod cmd_info;
 mod cmd_run;
 mod cmd_view;
 mod logging;
-mod viewer_bridge;
 
 use anyhow::Result;
 use clap::{Parser, Subcommand};

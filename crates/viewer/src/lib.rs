@@ -9,6 +9,11 @@
 //! [`RunController`] attached with [`Viewer::set_controller`] lets the page
 //! start and stop the pipeline.
 //!
+//! Live runs of the pipeline ([`colslam_slam::run::run`]): [`run_live`] runs
+//! one with the page following it (a bridge thread turns the pipeline's
+//! events into updates), and [`ViewController`] is the controller behind the
+//! page's Run/Stop/Export buttons.
+//!
 //! Protocol (see `web/app.js`): `GET /events` streams `update` events whose
 //! data is JSON; the first event of every connection is the full state
 //! (`"full": true`), later ones hold only what changed since the previous
@@ -27,11 +32,13 @@
 mod demo;
 mod export;
 mod http;
+mod live;
 mod state;
 mod types;
 
 pub use demo::demo_reconstruction;
 pub use export::{ExportError, ExportFormat, export_reconstruction, tum_trajectory};
+pub use live::{MAX_IMAGES_IN_FLIGHT, RunShared, ViewController, chain, chain_hooks, run_args_from_settings, run_live};
 pub use types::{
     DEFAULT_FLOW_THRESHOLD, DEFAULT_INIT_FRAMES, Extractor, FrameUpdate, KeyframeUpdate, MAX_FLOW_THRESHOLD,
     MIN_INIT_FRAMES, MapDelta, Matcher, RunController, RunSettings, RunState, Summary, ViewerCamera, ViewerPoint,

@@ -15,18 +15,19 @@
 //! first appeared (what the page needs for "introduced at"); the final
 //! model, read back from the output folder when the run ends, replaces the
 //! live map with full tracks.
+//!
+//! A caller adds hooks of its own to a live run (the binary's progress bar)
+//! with [`run_live`]'s `extra`; [`chain_hooks`] and [`chain`] combine hooks.
 
-use crate::cmd_run::run_with_progress;
-use anyhow::Result;
-use colslam_camera::Camera;
-use colslam_image::Image;
-use colslam_scene::Reconstruction;
-use colslam_slam::run::{RunConfig, RunHooks, RunOptions, RunOutput, RunStart};
-use colslam_slam::{EventSink, FeatureKind, MatcherKind, SlamEvent};
-use colslam_viewer::{
+use crate::{
     Extractor, FrameUpdate, KeyframeUpdate, MapDelta, Matcher, RunController, RunSettings, RunState, Summary,
     VIEW_MAX_WIDTH, ViewerCamera, ViewerHandle, ViewerPoint, ViewerUpdate, downscale_for_view,
 };
+use colslam_camera::Camera;
+use colslam_image::Image;
+use colslam_scene::Reconstruction;
+use colslam_slam::run::{Hook, RunConfig, RunHooks, RunOptions, RunOutput, RunStart};
+use colslam_slam::{EventSink, FeatureKind, MatcherKind, SlamError, SlamEvent};
 use std::collections::{HashMap, HashSet, VecDeque};
 use std::path::Path;
 use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
@@ -458,29 +459,94 @@ impl RunShared {
     }
 }
 
+/// Both hooks, `a` first.
+pub fn chain<'a, T: 'a>(a: Option<Hook<'a, T>>, b: Option<Hook<'a, T>>) -> Option<Hook<'a, T>> {
+    match (a, b) {
+        (Some(mut a), Some(mut b)) => Some(Box::new(move |v: &T| {
+            a(v);
+            b(v);
+        })),
+        (a, b) => a.or(b),
+    }
+}
+
+/// The hooks of `first` and `then`, each called in that order. With two
+/// cancel flags the run checks `first`'s, and `then`'s is copied into it
+/// before the first frame and after every frame, so either one stops the run
+/// where it would have stopped alone.
+pub fn chain_hooks<'a>(first: RunHooks<'a>, then: RunHooks<'a>) -> RunHooks<'a> {
+    let (cancel, forward) = match (first.cancel, then.cancel) {
+        (Some(a), Some(b)) => (Some(Arc::clone(&a)), Some((a, b))),
+        (a, b) => (a.or(b), None),
+    };
+    let (forward_start, forward_frame) = match forward {
+        Some((into, from)) => {
+            (Some(forward_cancel(Arc::clone(&into), Arc::clone(&from))), Some(forward_cancel(into, from)))
+        }
+        None => (None, None),
+    };
+    RunHooks {
+        cancel,
+        on_start: chain(chain(first.on_start, then.on_start), forward_start),
+        before_frame: chain(first.before_frame, then.before_frame),
+        after_frame: chain(chain(first.after_frame, then.after_frame), forward_frame),
+    }
+}
+
+/// A hook that sets `into` once `from` is set.
+fn forward_cancel<'a, T: 'a>(into: Arc<AtomicBool>, from: Arc<AtomicBool>) -> Hook<'a, T> {
+    Box::new(move |_: &T| {
+        if from.load(Ordering::SeqCst) {
+            into.store(true, Ordering::SeqCst);
+        }
+    })
+}
+
+/// `e` and its sources, joined by ": " (a source whose text already ends
+/// the message is left out).
+fn error_chain(e: &dyn std::error::Error) -> String {
+    let mut msg = e.to_string();
+    let mut source = e.source();
+    while let Some(s) = source {
+        let text = s.to_string();
+        if !msg.ends_with(&text) {
+            msg.push_str(": ");
+            msg.push_str(&text);
+        }
+        source = s.source();
+    }
+    msg
+}
+
 /// Runs the pipeline with the viewer following live: resets the page, feeds
 /// frames, keyframes, map increments and the summary through the bridge
 /// thread, then shows the final model (read back from the output folder)
-/// and the run's end state, no sooner than `final_not_before` (see
-/// [`MIN_RUN_STATE_DELAY`]). The caller took `shared`'s busy flag
+/// and the run's end state, no sooner than `final_not_before` (a run started
+/// from the page waits a moment so that the server's own "running", applied
+/// when the start returns, cannot overwrite a quick failure; `Instant::now()`
+/// for no wait). The caller took `shared`'s busy flag
 /// ([`RunShared::try_begin`], which also clears an old Stop); it is released
 /// right after the end state is sent.
+///
+/// `extra` are the caller's hooks (a progress bar; [`RunHooks::default`] for
+/// none), called after the viewer's ([`chain_hooks`]); the page's Stop and
+/// `extra`'s cancel flag both stop the run.
 pub fn run_live(
-    args: &RunConfig,
-    quiet: bool,
+    config: &RunConfig,
+    extra: RunHooks<'_>,
     handle: &ViewerHandle,
     shared: &RunShared,
     final_not_before: Instant,
-) -> Result<RunOutput> {
+) -> Result<RunOutput, SlamError> {
     shared.snapshot.begin();
     handle.apply(ViewerUpdate::Reset);
     handle.apply(ViewerUpdate::RunState(RunState::Running));
-    handle.apply(ViewerUpdate::Status(format!("running on {}", args.input.display())));
+    handle.apply(ViewerUpdate::Status(format!("running on {}", config.input.display())));
     let (sink, events) = EventSink::channel();
     let (tx, msgs) = channel::<BridgeMsg>();
     let in_flight = Arc::new(AtomicUsize::new(0));
     let viewer = handle.clone();
-    let bridge = Bridge::new(Box::new(move |u| viewer.apply(u)), Arc::clone(&in_flight), &args.options);
+    let bridge = Bridge::new(Box::new(move |u| viewer.apply(u)), Arc::clone(&in_flight), &config.options);
     let thread =
         std::thread::Builder::new().name("colslam-viewer-bridge".into()).spawn(move || bridge.run(events, msgs));
     let thread = match thread {
@@ -512,18 +578,18 @@ pub fn run_live(
                 }
             })),
         };
-        run_with_progress(args, quiet, sink, hooks)
+        colslam_slam::run::run(config, sink, chain_hooks(hooks, extra))
     };
     // The hooks and the event sink are gone: the bridge drains and ends.
     if let Some(t) = thread {
         let _ = t.join();
     }
     let final_model = match &result {
-        Ok(_) => read_final_model(&args.output),
+        Ok(_) => read_final_model(&config.output),
         Err(_) => None,
     };
     if let Some(rec) = &final_model {
-        handle.set_reconstruction_from(rec, &args.output.display().to_string());
+        handle.set_reconstruction_from(rec, &config.output.display().to_string());
     }
     if let Some(rest) = final_not_before.checked_duration_since(Instant::now()) {
         std::thread::sleep(rest);
@@ -537,7 +603,7 @@ pub fn run_live(
                 r.frames,
                 r.keyframes,
                 r.points,
-                args.output.display()
+                config.output.display()
             )));
             if let Some(rec) = &final_model
                 && r.wall_time_s > 0.0
@@ -547,7 +613,7 @@ pub fn run_live(
             }
             handle.apply(ViewerUpdate::RunState(RunState::Finished));
         }
-        Err(e) => handle.apply(ViewerUpdate::RunState(RunState::Failed(format!("{e:#}")))),
+        Err(e) => handle.apply(ViewerUpdate::RunState(RunState::Failed(error_chain(e)))),
     }
     shared.snapshot.store(final_model.map(Arc::new), false);
     shared.end();
@@ -616,11 +682,11 @@ impl RunController for ViewController {
         let (handle, shared) = (self.handle.clone(), Arc::clone(&self.shared));
         let not_before = Instant::now() + MIN_RUN_STATE_DELAY;
         let spawned = std::thread::Builder::new().name("colslam-run".into()).spawn(move || {
-            match run_live(&args, true, &handle, &shared, not_before) {
+            match run_live(&args, RunHooks::default(), &handle, &shared, not_before) {
                 Ok(_) => {
                     tracing::info!("run on {} finished; outputs in {}", args.input.display(), args.output.display())
                 }
-                Err(e) => tracing::error!("run on {} failed: {e:#}", args.input.display()),
+                Err(e) => tracing::error!("run on {} failed: {}", args.input.display(), error_chain(&e)),
             }
         });
         match spawned {
@@ -792,7 +858,10 @@ mod tests {
         // 2 moved (keeps its observers).
         b.event(map_updated(false, &[2, 4], &[1], &[3]));
         let ups = take(&got);
-        let lines = ups.iter().find_map(|u| match u {
+        // The last frame update: frame 30's message may also show the bare
+        // picture first when the frame interval since frame 10 has passed
+        // (the bridge is still initialising then), which depends on timing.
+        let lines = ups.iter().rev().find_map(|u| match u {
             ViewerUpdate::Frame(f) => Some(f.flow_lines.clone()),
             _ => None,
         });
@@ -848,5 +917,53 @@ mod tests {
         let _ = t.join();
         slot.store(None, false);
         assert!(slot.get().is_none());
+    }
+
+    #[test]
+    fn chained_hooks_run_in_order_and_forward_cancel() {
+        let calls = std::cell::RefCell::new(Vec::new());
+        let (a, b) = (Arc::new(AtomicBool::new(false)), Arc::new(AtomicBool::new(false)));
+        let first = RunHooks {
+            cancel: Some(Arc::clone(&a)),
+            on_start: Some(Box::new(|_: &RunStart| calls.borrow_mut().push("first"))),
+            ..RunHooks::default()
+        };
+        let then = RunHooks {
+            cancel: Some(Arc::clone(&b)),
+            on_start: Some(Box::new(|_: &RunStart| calls.borrow_mut().push("then"))),
+            ..RunHooks::default()
+        };
+        let mut hooks = chain_hooks(first, then);
+        assert!(hooks.cancel.as_ref().is_some_and(|c| Arc::ptr_eq(c, &a)), "the run checks the first flag");
+        assert!(hooks.before_frame.is_none(), "no hook where neither has one");
+        let start = RunStart {
+            camera: Camera::simple_pinhole(640, 480, 500.0, 319.5, 239.5),
+            frames: None,
+            description: String::new(),
+        };
+        let mut on_start = hooks.on_start.take().unwrap_or_else(|| panic!("an on_start hook"));
+        on_start(&start);
+        assert!(!a.load(Ordering::SeqCst));
+        b.store(true, Ordering::SeqCst);
+        on_start(&start);
+        assert!(a.load(Ordering::SeqCst), "the second flag is forwarded");
+        assert_eq!(*calls.borrow(), vec!["first", "then", "first", "then"]);
+        // One flag: used as it is.
+        let only = chain_hooks(RunHooks::default(), RunHooks { cancel: Some(Arc::clone(&b)), ..RunHooks::default() });
+        assert!(only.cancel.is_some_and(|c| Arc::ptr_eq(&c, &b)) && only.on_start.is_none());
+    }
+
+    #[test]
+    fn failure_message_names_the_causes() {
+        let io = std::io::Error::new(std::io::ErrorKind::PermissionDenied, "denied");
+        let e = SlamError::Io { path: "out".into(), source: io };
+        assert_eq!(error_chain(&e), "out: denied", "a source already in the message is not repeated");
+        let e = SlamError::Frame { index: 3, name: "a.png".into(), source: Box::new(e) };
+        assert_eq!(error_chain(&e), "processing frame 3 (a.png): out: denied");
+        #[derive(Debug, thiserror::Error)]
+        #[error("outer")]
+        struct Outer(#[source] std::io::Error);
+        let e = Outer(std::io::Error::other("inner"));
+        assert_eq!(error_chain(&e), "outer: inner", "a source not in the message is appended");
     }
 }

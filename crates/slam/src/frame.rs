@@ -2,6 +2,7 @@
 //! (index, timestamp, name) reused by the frontend's [`FrameData`], the
 //! records of non-keyframes and the poses of localised frames.
 
+use colslam_camera::Camera;
 use colslam_features::{Features, Match};
 use colslam_geometry::{Rigid3, Vec2};
 use colslam_scene::ImageId;
@@ -43,6 +44,18 @@ pub struct FrameData {
 }
 
 impl FrameData {
+    /// Recomputes the normalised coordinates from the pixels with `camera`
+    /// (COLMAP pixel convention), as the map's camera changes when its
+    /// intrinsics are refined; a keypoint the camera cannot undistort keeps
+    /// its value.
+    pub fn normalize_with(&mut self, camera: &Camera) {
+        for (n, px) in self.normalized.iter_mut().zip(&self.pixels) {
+            if let Some(v) = undistort(camera, px) {
+                *n = v;
+            }
+        }
+    }
+
     /// Frame index (after skip).
     pub fn index(&self) -> usize {
         self.id.index
@@ -64,6 +77,8 @@ impl FrameData {
 pub struct RecordObs {
     /// Keypoint index in the frame.
     pub frame_kp: u32,
+    /// Its position, pixels (COLMAP convention).
+    pub pixel: Vec2,
     /// Its normalised coordinates (rolling-shutter compensated when that is
     /// on).
     pub normalized: Vec2,
@@ -95,9 +110,10 @@ impl FrameRecord {
     /// Adds the matches of `data` (query) to keyframe `kf` (train).
     pub fn add_matches(&mut self, data: &FrameData, kf: ImageId, matches: &[Match]) {
         for m in matches {
-            if let Some(n) = data.normalized.get(m.query as usize) {
+            if let (Some(n), Some(px)) = (data.normalized.get(m.query as usize), data.pixels.get(m.query as usize)) {
                 self.obs.push(RecordObs {
                     frame_kp: m.query,
+                    pixel: *px,
                     normalized: *n,
                     measured: *n,
                     keyframe: kf,
@@ -106,6 +122,24 @@ impl FrameRecord {
             }
         }
     }
+}
+
+impl FrameRecord {
+    /// Recomputes the observations' normalised coordinates (as measured)
+    /// from their pixels with `camera` ([`FrameData::normalize_with`]).
+    pub fn normalize_with(&mut self, camera: &Camera) {
+        for o in &mut self.obs {
+            if let Some(v) = undistort(camera, &o.pixel) {
+                o.normalized = v;
+                o.measured = v;
+            }
+        }
+    }
+}
+
+/// The normalised coordinates of a pixel, when finite.
+pub(crate) fn undistort(camera: &Camera, px: &Vec2) -> Option<Vec2> {
+    camera.cam_from_img(px).filter(|n| n.iter().all(|v| v.is_finite()))
 }
 
 /// A localised frame.

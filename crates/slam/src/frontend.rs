@@ -86,8 +86,8 @@ impl Frontend {
         let mut colors = Vec::with_capacity(raw.len());
         for kp in &raw.keypoints {
             let px = Vec2::new(f64::from(kp.x) + 0.5, f64::from(kp.y) + 0.5);
-            match self.camera.cam_from_img(&px) {
-                Some(n) if n.iter().all(|v| v.is_finite()) => {
+            match crate::frame::undistort(&self.camera, &px) {
+                Some(n) => {
                     keep.push(true);
                     pixels.push(px);
                     normalized.push(n);

@@ -121,6 +121,11 @@ pub struct Slam {
     /// Shared so that features can be extracted on another thread
     /// ([`Slam::frontend`], [`Slam::process_features`]).
     frontend: Arc<Frontend>,
+    /// The run's camera (COLMAP convention) as the last finished map left
+    /// it: the frontend's at first, refined by a map whose intrinsics were
+    /// refined. The tracked map's reconstruction owns the camera while it
+    /// lives ([`Slam::camera`]).
+    camera: colslam_camera::Camera,
     emitter: Emitter,
     state: State,
     finished: Vec<Mapper>,
@@ -152,6 +157,7 @@ impl Slam {
         let frontend = Arc::new(Frontend::new(&opts.frontend, camera_opencv)?);
         Ok(Self {
             emitter: Emitter::new(events, opts.mapper.local_ba_images),
+            camera: frontend.camera().clone(),
             opts,
             frontend,
             state: State::Initializing { window: Vec::new() },
@@ -199,6 +205,16 @@ impl Slam {
         self.current_map().map(Mapper::reconstruction)
     }
 
+    /// The camera (COLMAP pixel convention) mapping uses now: the tracked
+    /// map's, refined there when intrinsics are refined; new frames are
+    /// normalised with it.
+    pub fn camera(&self) -> &colslam_camera::Camera {
+        match &self.state {
+            State::Tracking(t) => t.map.camera().unwrap_or(&self.camera),
+            State::Initializing { .. } => &self.camera,
+        }
+    }
+
     fn tracking(&mut self) -> Option<&mut Tracking> {
         match &mut self.state {
             State::Tracking(t) => Some(t),
@@ -225,7 +241,11 @@ impl Slam {
 
     /// Processes a frame whose features were extracted with
     /// [`Slam::frontend`]. Frames must come in order.
-    pub fn process_features(&mut self, data: FrameData) -> Result<(), SlamError> {
+    pub fn process_features(&mut self, mut data: FrameData) -> Result<(), SlamError> {
+        if self.opts.refine.refine_intrinsics {
+            // The frontend normalised with the camera it started with.
+            data.normalize_with(self.camera());
+        }
         self.frames.push(data.id.clone());
         if self.history.len() >= MAX_HISTORY {
             self.history.pop_front();
@@ -248,7 +268,11 @@ impl Slam {
     /// pair"; we also move on rather than fail).
     fn try_initialize(&mut self, at_end: bool) -> Result<(), SlamError> {
         let State::Initializing { window } = &mut self.state else { return Ok(()) };
-        let window = std::mem::take(window);
+        let mut window = std::mem::take(window);
+        if self.opts.refine.refine_intrinsics {
+            // Frames kept from a map that refined the camera since.
+            window.iter_mut().for_each(|d| d.normalize_with(&self.camera));
+        }
         if window.len() < 2 {
             self.state = State::Initializing { window };
             return Ok(());
@@ -256,7 +280,7 @@ impl Slam {
         let pair_matches = self.match_window(&window)?;
         let map_index = self.finished.len();
         let started = std::time::Instant::now();
-        let camera = self.frontend.camera().clone();
+        let camera = self.camera.clone();
         let init = Mapper::initialize(map_index, &window, &pair_matches, &camera, &self.opts, &mut self.timings)?;
         self.timings.add(Stage::Initialization, started.elapsed());
         match init {
@@ -388,7 +412,8 @@ impl Slam {
         let Some(kf) = t.map.last_keyframe() else { return Ok(()) };
         let (kf_id, frontend) = (kf.image_id, &self.frontend);
         let matches = self.timings.time(Stage::Matching, || frontend.match_frames(&data, &kf.data))?;
-        let (fx, fy) = (frontend.camera().focal_x(), frontend.camera().focal_y());
+        let camera = t.map.camera().unwrap_or(&self.camera);
+        let (fx, fy) = (camera.focal_x(), camera.focal_y());
         let t0 = std::time::Instant::now();
         let flow = flow_score(&data.features.keypoints, &kf.data.features.keypoints, &matches, fx, fy)?;
         let decision = keyframe_decision(matches.len(), flow.score, &self.opts.keyframes);
@@ -554,6 +579,9 @@ impl Slam {
         self.stats.notes.push(note);
         let new_map = t.map.index() + 1;
         let Tracking { map, prev, .. } = *t;
+        if let Ok(c) = map.camera() {
+            self.camera = c.clone();
+        }
         self.finished.push(map);
         self.emitter.send(SlamEvent::MapReset { new_map, frame_index: frame, reason });
         // The last frames start the next initialisation window.
@@ -614,8 +642,26 @@ impl Slam {
     /// compensates rolling shutter and refines with all frames when asked,
     /// and colours the points.
     fn localize_map(&mut self, mut map: Mapper) -> Result<MapResult, SlamError> {
-        let extra = map.relocalization_records(&self.orphans, &self.frontend, &mut self.timings)?;
+        let renormalized: Vec<FrameData>;
+        let orphans: &[FrameData] = if self.opts.refine.refine_intrinsics {
+            let camera = map.camera()?.clone();
+            renormalized = self
+                .orphans
+                .iter()
+                .cloned()
+                .map(|mut d| {
+                    d.normalize_with(&camera);
+                    d
+                })
+                .collect();
+            &renormalized
+        } else {
+            &self.orphans
+        };
+        let extra = map.relocalization_records(orphans, &self.frontend, &mut self.timings)?;
         map.add_records(extra);
+        // Every normalised coordinate from the map's final camera.
+        map.refresh_all()?;
         let mut loc = map.localize_all(&self.opts, &mut self.timings)?;
         if self.opts.refine.rolling_shutter > 0.0 {
             loc = map.compensate_rolling_shutter(loc, &self.opts, &mut self.timings)?;
@@ -623,6 +669,7 @@ impl Slam {
         if self.opts.refine.refine_all_frames {
             map.refine_with_all_frames(&mut loc.poses, &loc.inliers, &self.opts, &mut self.timings)?;
         }
+        map.refresh_keyframes(0..map.keyframes().len())?;
         map.color_points();
         Ok(MapResult { map, poses: loc.poses })
     }

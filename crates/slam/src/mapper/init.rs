@@ -173,8 +173,8 @@ impl Mapper {
         let tri = opts.mapper.triangulator();
         timings.time(Stage::Triangulation, || triangulate_image(&mut map.rec, &map.graph, ids[0], &tri))?;
         map.keyframes = vec![
-            Keyframe { image_id: ids[0], data: pair.0.clone() },
-            Keyframe { image_id: ids[1], data: pair.1.clone() },
+            Keyframe { image_id: ids[0], data: pair.0.clone(), version: 0 },
+            Keyframe { image_id: ids[1], data: pair.1.clone(), version: 0 },
         ];
         map.initial_frames = (pair.0.index(), pair.1.index());
         if opts.mapper.weight_by_level {

@@ -200,7 +200,10 @@ impl Mapper {
         self.link_merged_points(merged_pairs, &point_map)?;
         for kf in source.keyframes.iter().filter(|k| !shared.contains(&k.image_id)) {
             if let Some(&id) = image_map.get(&kf.image_id) {
-                self.keyframes.push(Keyframe { image_id: id, data: kf.data.clone() });
+                // Normalised with the source's camera: stale here once either
+                // camera was refined.
+                let version = if source.intrinsics_version == 0 && self.intrinsics_version == 0 { 0 } else { u64::MAX };
+                self.keyframes.push(Keyframe { image_id: id, data: kf.data.clone(), version });
             }
         }
         for (old_id, sig) in source.sigmas.iter().filter(|(id, _)| !shared.contains(id)) {

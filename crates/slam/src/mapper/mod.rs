@@ -25,3 +25,6 @@ mod state;
 pub use localize::{FrameInliers, Localization};
 pub use register::{RegisterFailure, Registration};
 pub use state::{Keyframe, Mapper, ORB_LEVEL_SCALE, keypoint_sigmas};
+
+#[cfg(test)]
+mod tests;

@@ -70,6 +70,9 @@ impl Mapper {
         timings: &mut StageTimings,
     ) -> Result<Registration, SlamError> {
         let focal = self.focal()?;
+        // `data` was normalised with the camera as it is now (the caller's
+        // duty); local refinement below may refine it.
+        let version = self.intrinsics_version;
         let recent: Vec<usize> = (0..self.keyframes.len()).rev().take(opts.mapper.match_keyframes).collect();
         let mut kf_matches = self.match_recent(data, &recent, matches_to_last, frontend, timings)?;
         let started = std::time::Instant::now();
@@ -98,6 +101,7 @@ impl Mapper {
             kf_matches.push((k, m));
         }
         let image_id = self.add_keyframe_image(data, pose.cam_from_world, opts)?;
+        self.refresh_keyframes(kf_matches.iter().map(|(k, _)| *k))?;
         self.add_verified_matches(data, image_id, &pose.cam_from_world, &kf_matches, focal)?;
         self.continue_tracks(image_id, &corr, &pose.inlier_mask)?;
         timings.add(Stage::Registration, started.elapsed());
@@ -108,7 +112,7 @@ impl Mapper {
             self.deregister(image_id)?;
             return Ok(Registration::Rejected(RegisterFailure::TooFewPoints(kept)));
         }
-        self.keyframes.push(Keyframe { image_id, data: data.clone() });
+        self.keyframes.push(Keyframe { image_id, data: data.clone(), version });
         Ok(Registration::Registered(image_id))
     }
 
@@ -271,8 +275,12 @@ impl Mapper {
         timings: &mut StageTimings,
     ) -> Result<(), SfmError> {
         let ba_opts = opts.mapper.local_ba(self.sigmas.clone());
-        let (n, refine) = (opts.mapper.local_ba_images, opts.refine.refine_intrinsics);
-        let ba = timings.time(Stage::LocalBa, || adjust_local(&mut self.rec, image_id, n, refine, &ba_opts))?;
+        // Intrinsics stay fixed here: a local bundle of a few keyframes
+        // does not constrain them, and the camera every later frame is
+        // normalised with would follow its noise; global refinement refines
+        // them.
+        let n = opts.mapper.local_ba_images;
+        let ba = timings.time(Stage::LocalBa, || adjust_local(&mut self.rec, image_id, n, false, &ba_opts))?;
         tracing::debug!(
             "frame {frame}: local BA cost {:.4e} -> {:.4e} in {} iterations ({:?}), {} variable poses",
             ba.initial_cost,

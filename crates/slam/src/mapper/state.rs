@@ -16,8 +16,11 @@ use std::collections::HashMap;
 pub struct Keyframe {
     /// Its image id in the map.
     pub image_id: ImageId,
-    /// Its features.
+    /// Its features; their normalised coordinates are those of the map's
+    /// camera at intrinsics version `version` ([`Mapper::refresh_keyframes`]).
     pub data: FrameData,
+    /// The map's intrinsics version its normalised coordinates were made at.
+    pub version: u64,
 }
 
 /// One map.
@@ -45,6 +48,10 @@ pub struct Mapper {
     /// Keypoint standard deviations (px) of the keyframes, for weighting
     /// bundle adjustment by pyramid level.
     pub(super) sigmas: KeypointSigmas,
+    /// Counts the bundle adjustments that refined the camera's intrinsics:
+    /// the reconstruction owns the run's camera, and normalised coordinates
+    /// made before the last refinement are stale.
+    pub(super) intrinsics_version: u64,
 }
 
 /// Scale between ORB pyramid levels: a keypoint found at octave `o` is
@@ -71,6 +78,7 @@ impl Mapper {
             initial_frames: (0, 0),
             last_global: (0, 0),
             sigmas: KeypointSigmas::default(),
+            intrinsics_version: 0,
         }
     }
 
@@ -98,6 +106,49 @@ impl Mapper {
     pub(crate) fn focal(&self) -> Result<f64, SceneError> {
         let c = self.camera()?;
         Ok(0.5 * (c.focal_x() + c.focal_y()))
+    }
+
+    /// Notes that a bundle adjustment may have refined the intrinsics.
+    pub(super) fn intrinsics_refined(&mut self, opts: &SlamOptions) {
+        if opts.refine.refine_intrinsics {
+            self.intrinsics_version += 1;
+        }
+    }
+
+    /// Brings the normalised coordinates of the keyframes at positions `ks`
+    /// to the map's current camera (nothing to do unless intrinsics were
+    /// refined since they were made).
+    pub fn refresh_keyframes(&mut self, ks: impl IntoIterator<Item = usize>) -> Result<(), SceneError> {
+        let version = self.intrinsics_version;
+        let mut camera = None;
+        for k in ks {
+            let Some(kf) = self.keyframes.get_mut(k).filter(|kf| kf.version != version) else { continue };
+            let camera = match &camera {
+                Some(c) => c,
+                None => camera.insert(
+                    self.rec
+                        .camera(self.camera_id)
+                        .map(|c| c.camera.clone())
+                        .ok_or(SceneError::UnknownCamera(self.camera_id))?,
+                ),
+            };
+            kf.data.normalize_with(camera);
+            kf.version = version;
+        }
+        Ok(())
+    }
+
+    /// Brings every keyframe's and every record's normalised coordinates to
+    /// the map's current camera (after intrinsics were refined).
+    pub fn refresh_all(&mut self) -> Result<(), SceneError> {
+        self.refresh_keyframes(0..self.keyframes.len())?;
+        if self.intrinsics_version > 0 {
+            let camera = self.camera()?.clone();
+            for r in &mut self.records {
+                r.normalize_with(&camera);
+            }
+        }
+        Ok(())
     }
 
     /// Registered keyframes, in the current order (frame order outside a
@@ -197,6 +248,7 @@ impl Mapper {
         let ba = opts.mapper.global_ba(tolerance);
         let refine = opts.refine.refine_intrinsics;
         let report = timings.time(Stage::GlobalBa, || adjust_global(&mut self.rec, refine, &ba))?;
+        self.intrinsics_refined(opts);
         tracing::debug!(
             "map {}: global BA over {} images / {} points: cost {:.4e} -> {:.4e} in {} iterations ({:?})",
             self.index,

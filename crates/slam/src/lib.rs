@@ -9,6 +9,17 @@
 //!   refine, filter, deregister, merge, localise) on one map;
 //! - [`options::SlamOptions`] is the one options tree.
 //!
+//! ```no_run
+//! use colslam_slam::{EventSink, RunConfig, RunHooks};
+//! # fn main() -> Result<(), colslam_slam::SlamError> {
+//! let mut config = RunConfig::new("video.mp4", "out");
+//! config.options.slam.keyframes.flow_threshold = 0.04; // the options tree of `colslam run --help`
+//! let out = colslam_slam::run::run(&config, EventSink::none(), RunHooks::default())?;
+//! println!("{} of {} frames localised", out.report.localized, out.report.frames);
+//! # Ok(())
+//! # }
+//! ```
+//!
 //! Beyond the paper: a pure-rotation guard, forced keyframes before
 //! tracking is lost, backward tracking from a late map, localisation of
 //! every frame, new maps after a loss and their merging, rolling-shutter

@@ -156,7 +156,10 @@ impl Default for InitOptions {
 #[cfg_attr(feature = "cli", command(next_help_heading = "Keyframes"))]
 #[serde(default, deny_unknown_fields)]
 pub struct KeyframeOptions {
-    /// Flow score a frame must exceed to become a keyframe, in [0, 10).
+    /// Flow score a frame must exceed to become a keyframe, in [0, 1].
+    ///
+    /// The score is a displacement over the focal length: 1 is already a
+    /// motion of a whole focal length between frames.
     #[cfg_attr(feature = "cli", arg(long, default_value_t = KeyframeOptions::default().flow_threshold))]
     pub flow_threshold: f64,
     /// Matches to the last keyframe a keyframe needs, at least 8.
@@ -441,7 +444,8 @@ impl SlamOptions {
         let a = i.init_min_tri_angle;
         check(in_range(a, 0.0, 90.0), "init-min-tri-angle", a, "must lie in [0, 90)")?;
         check(i.init_min_inliers >= 8, "init-min-inliers", i.init_min_inliers, "must be at least 8")?;
-        check(in_range(k.flow_threshold, 0.0, 10.0), "flow-threshold", k.flow_threshold, "must lie in [0, 10)")?;
+        let ft = k.flow_threshold;
+        check(ft.is_finite() && (0.0..=1.0).contains(&ft), "flow-threshold", ft, "must lie in [0, 1]")?;
         check(k.min_matches >= 8, "min-matches", k.min_matches, "must be at least 8")?;
         check(k.max_lost_frames >= 1, "max-lost-frames", k.max_lost_frames, "must be at least 1")?;
         check(m.match_keyframes >= 1, "match-keyframes", m.match_keyframes, "must be at least 1")?;

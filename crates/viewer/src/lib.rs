@@ -40,9 +40,8 @@ pub use demo::demo_reconstruction;
 pub use export::{ExportError, ExportFormat, export_reconstruction, tum_trajectory};
 pub use live::{MAX_IMAGES_IN_FLIGHT, RunShared, ViewController, chain, chain_hooks, run_args_from_settings, run_live};
 pub use types::{
-    DEFAULT_FLOW_THRESHOLD, DEFAULT_INIT_FRAMES, Extractor, FrameUpdate, KeyframeUpdate, MAX_FLOW_THRESHOLD,
-    MIN_INIT_FRAMES, MapDelta, Matcher, RunController, RunSettings, RunState, Summary, ViewerCamera, ViewerPoint,
-    ViewerUpdate,
+    Extractor, FrameUpdate, KeyframeUpdate, MapDelta, Matcher, RunController, RunSettings, RunState, Summary,
+    ViewerCamera, ViewerPoint, ViewerUpdate,
 };
 
 use colslam_image::Image;

@@ -20,14 +20,14 @@
 //! with [`run_live`]'s `extra`; [`chain_hooks`] and [`chain`] combine hooks.
 
 use crate::{
-    Extractor, FrameUpdate, KeyframeUpdate, MapDelta, Matcher, RunController, RunSettings, RunState, Summary,
-    VIEW_MAX_WIDTH, ViewerCamera, ViewerHandle, ViewerPoint, ViewerUpdate, downscale_for_view,
+    FrameUpdate, KeyframeUpdate, MapDelta, RunController, RunSettings, RunState, Summary, VIEW_MAX_WIDTH, ViewerCamera,
+    ViewerHandle, ViewerPoint, ViewerUpdate, downscale_for_view,
 };
 use colslam_camera::Camera;
 use colslam_image::Image;
 use colslam_scene::Reconstruction;
 use colslam_slam::run::{Hook, RunConfig, RunHooks, RunOptions, RunOutput, RunStart};
-use colslam_slam::{EventSink, FeatureKind, MatcherKind, SlamError, SlamEvent};
+use colslam_slam::{EventSink, SlamError, SlamEvent};
 use std::collections::{HashMap, HashSet, VecDeque};
 use std::path::Path;
 use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
@@ -648,24 +648,9 @@ impl ViewController {
 }
 
 /// The run the page's settings select, on top of `base`, validated by the
-/// library's options.
+/// library's options (the output may not be a file).
 pub fn run_args_from_settings(base: &RunOptions, s: &RunSettings) -> Result<RunConfig, String> {
-    s.validate()?;
-    let mut options = base.clone();
-    options.slam.frontend.features = match s.extractor {
-        Extractor::Orb => FeatureKind::Orb,
-        Extractor::Xfeat => FeatureKind::Xfeat,
-    };
-    options.slam.frontend.matcher = match s.matcher {
-        Matcher::Nn => MatcherKind::Nn,
-        Matcher::Lighterglue => MatcherKind::Lighterglue,
-    };
-    options.input.skip = s.skip_usize();
-    options.input.max_frames = s.max_frames.map(|m| usize::try_from(m).unwrap_or(usize::MAX));
-    options.slam.init.init_frames =
-        usize::try_from(s.init_frames).map_err(|_| format!("invalid initialisation frames {}", s.init_frames))?;
-    options.slam.keyframes.flow_threshold = s.flow_threshold;
-    let config = RunConfig { options, ..RunConfig::new(&s.input, &s.output) };
+    let config = s.to_config(base)?;
     config.validate().map_err(|e| e.to_string())?;
     Ok(config)
 }
@@ -745,7 +730,10 @@ mod tests {
         let o = &a.options;
         assert_eq!((o.input.skip, o.input.max_frames, o.slam.init.init_frames), (3, Some(50), 10));
         assert_eq!(o.slam.keyframes.flow_threshold, 0.1);
-        assert_eq!((o.slam.frontend.features, o.slam.frontend.matcher), (FeatureKind::Orb, MatcherKind::Nn));
+        assert_eq!(
+            (o.slam.frontend.features, o.slam.frontend.matcher),
+            (colslam_slam::FeatureKind::Orb, colslam_slam::MatcherKind::Nn)
+        );
         let bad = RunSettings { skip: 0, ..s };
         assert!(run_args_from_settings(&base(), &bad).is_err());
     }

@@ -336,7 +336,7 @@ fn run_control() {
         (settings.replace("\"skip\":2", "\"skip\":-1"), "skip"),
         (settings.replace("/data/seq", ""), "input"),
         (settings.replace("0.05", "1.5"), "threshold"),
-        (settings.replace("\"init_frames\":20", "\"init_frames\":1"), "initialisation"),
+        (settings.replace("\"init_frames\":20", "\"init_frames\":1"), "init-frames"),
         (settings.replace("\"orb\"", "\"sift\""), "sift"),
     ] {
         let (code, j) = post(&v, "/api/run", &bad);

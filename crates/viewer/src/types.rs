@@ -211,37 +211,10 @@ pub enum ViewerUpdate {
     RunState(RunState),
 }
 
-/// Feature extractor choice (paper section 3.1).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
-#[serde(rename_all = "lowercase")]
-pub enum Extractor {
-    /// ORB.
-    #[default]
-    Orb,
-    /// XFeat.
-    Xfeat,
-}
-
-/// Feature matcher choice.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
-#[serde(rename_all = "lowercase")]
-pub enum Matcher {
-    /// Nearest neighbour (Hamming / L2 with ratio test).
-    #[default]
-    Nn,
-    /// LighterGlue.
-    Lighterglue,
-}
-
-/// Largest accepted flow threshold: the score is a displacement divided by
-/// the focal length, so 1 already means motion of a whole focal length.
-pub const MAX_FLOW_THRESHOLD: f64 = 1.0;
-/// Smallest number of initialisation frames (a pair is needed).
-pub const MIN_INIT_FRAMES: usize = 2;
-/// Default initialisation frames (paper section 4.2: 20).
-pub const DEFAULT_INIT_FRAMES: usize = 20;
-/// Default flow threshold (paper section 3.4: 0.05).
-pub const DEFAULT_FLOW_THRESHOLD: f64 = 0.05;
+/// Feature extractor choice (paper section 3.1): the pipeline's own option.
+pub use colslam_slam::FeatureKind as Extractor;
+/// Feature matcher choice: the pipeline's own option.
+pub use colslam_slam::MatcherKind as Matcher;
 
 /// The settings the page's Run button sends (paper section 3.7.3).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -271,14 +244,15 @@ pub struct RunSettings {
     pub matcher: Matcher,
 }
 
+// The page's defaults are the pipeline's (one declaration).
 fn default_skip() -> i64 {
-    1
+    colslam_slam::InputOptions::default().skip as i64
 }
 fn default_init_frames() -> i64 {
-    DEFAULT_INIT_FRAMES as i64
+    colslam_slam::options::InitOptions::default().init_frames as i64
 }
 fn default_flow_threshold() -> f64 {
-    DEFAULT_FLOW_THRESHOLD
+    colslam_slam::options::KeyframeOptions::default().flow_threshold
 }
 
 impl Default for RunSettings {
@@ -289,7 +263,7 @@ impl Default for RunSettings {
             skip: default_skip(),
             max_frames: None,
             init_frames: default_init_frames(),
-            flow_threshold: DEFAULT_FLOW_THRESHOLD,
+            flow_threshold: default_flow_threshold(),
             extractor: Extractor::default(),
             matcher: Matcher::default(),
         }
@@ -297,31 +271,33 @@ impl Default for RunSettings {
 }
 
 impl RunSettings {
-    /// Checks the settings (the page checks the same before sending): an
-    /// input path, `skip >= 1`, `max_frames >= 1` when given,
-    /// `init_frames >= 2` and a flow threshold in `[0, 1]`.
+    /// Checks the settings with the pipeline's own validation (the page
+    /// checks the same before sending): input and output paths given, and
+    /// every option in its range.
     pub fn validate(&self) -> Result<(), String> {
+        self.to_config(&colslam_slam::RunOptions::default()).map(|_| ())
+    }
+
+    /// The run these settings select on top of `base` (the options the page
+    /// does not set), validated by the pipeline's options.
+    pub fn to_config(&self, base: &colslam_slam::RunOptions) -> Result<colslam_slam::RunConfig, String> {
         if self.input.as_os_str().is_empty() {
             return Err("input path is missing".into());
         }
         if self.output.as_os_str().is_empty() {
             return Err("output path is missing".into());
         }
-        if self.skip < 1 {
-            return Err(format!("frame skip must be at least 1, got {}", self.skip));
-        }
-        if let Some(m) = self.max_frames
-            && m < 1
-        {
-            return Err(format!("maximum frames must be at least 1, got {m}"));
-        }
-        if self.init_frames < MIN_INIT_FRAMES as i64 {
-            return Err(format!("initialisation frames must be at least {MIN_INIT_FRAMES}, got {}", self.init_frames));
-        }
-        if !(0.0..=MAX_FLOW_THRESHOLD).contains(&self.flow_threshold) {
-            return Err(format!("flow threshold must be in [0, {MAX_FLOW_THRESHOLD}], got {}", self.flow_threshold));
-        }
-        Ok(())
+        let count = |name: &str, v: i64| usize::try_from(v).map_err(|_| format!("{name} must be at least 1, got {v}"));
+        let mut options = base.clone();
+        options.slam.frontend.features = self.extractor;
+        options.slam.frontend.matcher = self.matcher;
+        options.input.skip = count("frame skip", self.skip)?;
+        options.input.max_frames = self.max_frames.map(|m| count("maximum frames", m)).transpose()?;
+        options.slam.init.init_frames = count("initialisation frames", self.init_frames)?;
+        options.slam.keyframes.flow_threshold = self.flow_threshold;
+        let config = colslam_slam::RunConfig { options, ..colslam_slam::RunConfig::new(&self.input, &self.output) };
+        config.options.validate().map_err(|e| e.to_string())?;
+        Ok(config)
     }
 
     /// `skip` as an unsigned count (valid settings only; 1 otherwise).

@@ -1,7 +1,7 @@
 //! The initial pair (paper 3.3): COLMAP's `FindInitialImagePair` and
 //! `RegisterInitialImagePair`, adapted to a window of video frames.
 
-use super::state::{Keyframe, Mapper, keypoint_sigmas};
+use super::state::{Keyframe, Mapper};
 use crate::frame::FrameData;
 use crate::options::{GlobalBaTolerance, INIT_TWO_VIEW_TRIALS, SlamOptions, VERIFY_MAX_ERROR_PX, ransac_options};
 use crate::timing::{Stage, StageTimings};
@@ -11,7 +11,6 @@ use colslam_estimators::{
 };
 use colslam_features::Match;
 use colslam_geometry::{Rigid3, Vec2};
-use colslam_scene::Image;
 use colslam_sfm::SfmError;
 use colslam_sfm::triangulator::triangulate_image;
 use std::collections::HashMap;
@@ -158,16 +157,10 @@ impl Mapper {
         timings: &mut StageTimings,
     ) -> Result<Mapper, SfmError> {
         let mut map = Mapper::empty(index, camera);
-        let mut ids = Vec::new();
-        for (data, pose) in [(pair.0, Rigid3::identity()), (pair.1, b_from_a)] {
-            let id = map.rec.next_image_id();
-            let mut img = Image::new(id, data.id.name.clone(), map.camera_id, data.pixels.clone());
-            img.cam_from_world = pose;
-            map.rec.add_image(img)?;
-            map.rec.register_image(id)?;
-            map.graph.add_image(id, data.len())?;
-            ids.push(id);
-        }
+        let ids = [
+            map.add_keyframe_image(pair.0, Rigid3::identity(), opts)?,
+            map.add_keyframe_image(pair.1, b_from_a, opts)?,
+        ];
         let pairs: Vec<(u32, u32)> = inliers.iter().map(|m| (m.query, m.train)).collect();
         map.graph.add_correspondences(ids[0], ids[1], &pairs)?;
         let tri = opts.mapper.triangulator();
@@ -177,11 +170,6 @@ impl Mapper {
             Keyframe { image_id: ids[1], data: pair.1.clone(), version: 0 },
         ];
         map.initial_frames = (pair.0.index(), pair.1.index());
-        if opts.mapper.weight_by_level {
-            let m = std::sync::Arc::make_mut(&mut map.sigmas);
-            m.insert(ids[0], keypoint_sigmas(pair.0));
-            m.insert(ids[1], keypoint_sigmas(pair.1));
-        }
         map.global_refine(GlobalBaTolerance::Converged, opts, timings)?;
         Ok(map)
     }

@@ -178,8 +178,14 @@ impl Mapper {
         estimate_absolute_pose(&corr.points2d, &corr.points3d, &pose_opts).map_err(RegisterFailure::PoseFailed)
     }
 
-    /// Adds and registers the keyframe's image at `pose`.
-    fn add_keyframe_image(&mut self, data: &FrameData, pose: Rigid3, opts: &SlamOptions) -> Result<ImageId, SfmError> {
+    /// Adds and registers a keyframe's image at `pose` (with its keypoint
+    /// sigmas when BA weights by pyramid level).
+    pub(super) fn add_keyframe_image(
+        &mut self,
+        data: &FrameData,
+        pose: Rigid3,
+        opts: &SlamOptions,
+    ) -> Result<ImageId, SfmError> {
         let image_id = self.rec.next_image_id();
         let mut img = Image::new(image_id, data.id.name.clone(), self.camera_id, data.pixels.clone());
         img.cam_from_world = pose;

@@ -5,7 +5,6 @@
 use anyhow::Result;
 use colslam_slam::run::{RunConfig, RunHooks, RunOutput, RunStart};
 use colslam_slam::{EventSink, RunReport};
-use colslam_viewer::chain_hooks;
 
 /// Calls `f` with the hooks of a progress bar over a run's frames (hidden
 /// with `quiet`), cleared when `f` returns.
@@ -25,7 +24,7 @@ pub fn with_progress<R>(quiet: bool, f: impl FnOnce(RunHooks<'_>) -> R) -> R {
 
 /// Runs the pipeline with `hooks` and a progress bar (hidden with `quiet`).
 pub fn run_with_progress(config: &RunConfig, quiet: bool, events: EventSink, hooks: RunHooks<'_>) -> Result<RunOutput> {
-    Ok(with_progress(quiet, |bar| colslam_slam::run::run(config, events, chain_hooks(hooks, bar)))?)
+    Ok(with_progress(quiet, |bar| colslam_slam::run::run(config, events, hooks.then(bar)))?)
 }
 
 /// A short summary table of a run.

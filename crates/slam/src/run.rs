@@ -150,14 +150,8 @@ impl RunConfig {
                 reason: "must be a positive number of pixels".into(),
             });
         }
-        if let Some(name) = &self.camera.preset
-            && presets::preset(name).is_none()
-        {
-            return Err(SlamError::InvalidOption {
-                name: "preset",
-                value: name.clone(),
-                reason: format!("unknown camera preset (known: {})", presets::preset_names().join(", ")),
-            });
+        if let Some(name) = &self.camera.preset {
+            preset_camera(name)?;
         }
         if self.output.exists() && !self.output.is_dir() {
             let reason = "the output exists and is not a folder".to_string();
@@ -165,6 +159,15 @@ impl RunConfig {
         }
         Ok(())
     }
+}
+
+/// The built-in camera `name`, or an error listing the known ones.
+fn preset_camera(name: &str) -> Result<Camera, SlamError> {
+    presets::preset(name).ok_or_else(|| SlamError::InvalidOption {
+        name: "preset",
+        value: name.to_string(),
+        reason: format!("unknown camera preset (known: {})", presets::preset_names().join(", ")),
+    })
 }
 
 /// The camera of a run and whether its focal length is a guess.
@@ -189,12 +192,7 @@ pub fn resolve_camera(
         return Ok(ResolvedCamera { camera: colslam_camera::file::read_camera_file(path)?, guessed: false });
     }
     if let Some(name) = &opts.preset {
-        let camera = presets::preset(name).ok_or_else(|| SlamError::InvalidOption {
-            name: "preset",
-            value: name.clone(),
-            reason: format!("unknown camera preset (known: {})", presets::preset_names().join(", ")),
-        })?;
-        return Ok(ResolvedCamera { camera, guessed: false });
+        return Ok(ResolvedCamera { camera: preset_camera(name)?, guessed: false });
     }
     if opts.focal.is_none()
         && let Some(path) = source.camera_file()
@@ -241,16 +239,46 @@ pub type Hook<'a, T> = Box<dyn FnMut(&T) + 'a>;
 /// not block.
 #[derive(Default)]
 pub struct RunHooks<'a> {
-    /// Checked before every frame: once set, no more frames are read and the
-    /// run finishes with the frames so far (outputs are written as usual, and
-    /// the report says where it stopped).
-    pub cancel: Option<Arc<AtomicBool>>,
+    /// Stop flags, checked before every frame: once one is set, no more
+    /// frames are read and the run finishes with the frames so far (outputs
+    /// are written as usual, and the report says where it stopped).
+    pub cancel: Vec<Arc<AtomicBool>>,
     /// Called once before the first frame.
     pub on_start: Option<Hook<'a, RunStart>>,
     /// Called with every decoded frame before the pipeline processes it.
     pub before_frame: Option<Hook<'a, Frame>>,
     /// Called with the pipeline after every processed frame.
     pub after_frame: Option<Hook<'a, Slam>>,
+}
+
+impl<'a> RunHooks<'a> {
+    /// These hooks, each followed by `other`'s; a stop flag of either stops
+    /// the run (a front end's hooks and a caller's progress bar, say).
+    pub fn then(mut self, other: RunHooks<'a>) -> Self {
+        self.cancel.extend(other.cancel);
+        Self {
+            cancel: self.cancel,
+            on_start: chain(self.on_start, other.on_start),
+            before_frame: chain(self.before_frame, other.before_frame),
+            after_frame: chain(self.after_frame, other.after_frame),
+        }
+    }
+
+    /// True once a stop flag is set.
+    pub fn cancelled(&self) -> bool {
+        self.cancel.iter().any(|c| c.load(Ordering::SeqCst))
+    }
+}
+
+/// Both hooks, `a` first.
+fn chain<'a, T: 'a>(a: Option<Hook<'a, T>>, b: Option<Hook<'a, T>>) -> Option<Hook<'a, T>> {
+    match (a, b) {
+        (Some(mut a), Some(mut b)) => Some(Box::new(move |v: &T| {
+            a(v);
+            b(v);
+        })),
+        (a, b) => a.or(b),
+    }
 }
 
 /// What a run produced.
@@ -378,7 +406,7 @@ fn consume(
 ) -> Result<Option<usize>, SlamError> {
     let mut processed = 0usize;
     for item in rx.iter() {
-        if hooks.cancel.as_ref().is_some_and(|c| c.load(Ordering::SeqCst)) {
+        if hooks.cancelled() {
             return Ok(Some(processed));
         }
         let ExtractedFrame { frame, data, decode, features } = match item {
@@ -403,4 +431,43 @@ fn consume(
         }
     }
     Ok(None)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn chained_hooks_run_in_order_and_either_flag_stops() {
+        let calls = std::cell::RefCell::new(Vec::new());
+        let (a, b) = (Arc::new(AtomicBool::new(false)), Arc::new(AtomicBool::new(false)));
+        let first = RunHooks {
+            cancel: vec![Arc::clone(&a)],
+            on_start: Some(Box::new(|_: &RunStart| calls.borrow_mut().push("first"))),
+            ..RunHooks::default()
+        };
+        let then = RunHooks {
+            cancel: vec![Arc::clone(&b)],
+            on_start: Some(Box::new(|_: &RunStart| calls.borrow_mut().push("then"))),
+            ..RunHooks::default()
+        };
+        let mut hooks = first.then(then);
+        assert!(hooks.before_frame.is_none(), "no hook where neither has one");
+        let start = RunStart {
+            camera: Camera::simple_pinhole(640, 480, 500.0, 319.5, 239.5),
+            frames: None,
+            description: String::new(),
+        };
+        let mut on_start = hooks.on_start.take().unwrap_or_else(|| panic!("an on_start hook"));
+        on_start(&start);
+        on_start(&start);
+        assert_eq!(*calls.borrow(), vec!["first", "then", "first", "then"]);
+        assert!(!hooks.cancelled());
+        b.store(true, Ordering::SeqCst);
+        assert!(hooks.cancelled(), "the second flag stops the run");
+        b.store(false, Ordering::SeqCst);
+        a.store(true, Ordering::SeqCst);
+        assert!(hooks.cancelled(), "the first flag stops the run");
+        assert!(!RunHooks::default().then(RunHooks::default()).cancelled());
+    }
 }

@@ -38,7 +38,7 @@ mod types;
 
 pub use demo::demo_reconstruction;
 pub use export::{ExportError, ExportFormat, export_reconstruction, tum_trajectory};
-pub use live::{MAX_IMAGES_IN_FLIGHT, RunShared, ViewController, chain, chain_hooks, run_args_from_settings, run_live};
+pub use live::{MAX_IMAGES_IN_FLIGHT, RunShared, ViewController, run_args_from_settings, run_live};
 pub use types::{
     Extractor, FrameUpdate, KeyframeUpdate, MapDelta, Matcher, RunController, RunSettings, RunState, Summary,
     ViewerCamera, ViewerPoint, ViewerUpdate,

@@ -17,7 +17,7 @@
 //! live map with full tracks.
 //!
 //! A caller adds hooks of its own to a live run (the binary's progress bar)
-//! with [`run_live`]'s `extra`; [`chain_hooks`] and [`chain`] combine hooks.
+//! with [`run_live`]'s `extra` ([`RunHooks::then`] combines them).
 
 use crate::{
     FrameUpdate, KeyframeUpdate, MapDelta, RunController, RunSettings, RunState, Summary, VIEW_MAX_WIDTH, ViewerCamera,
@@ -26,7 +26,7 @@ use crate::{
 use colslam_camera::Camera;
 use colslam_image::Image;
 use colslam_scene::Reconstruction;
-use colslam_slam::run::{Hook, RunConfig, RunHooks, RunOptions, RunOutput, RunStart};
+use colslam_slam::run::{RunConfig, RunHooks, RunOptions, RunOutput, RunStart};
 use colslam_slam::{EventSink, SlamError, SlamEvent};
 use std::collections::{HashMap, HashSet, VecDeque};
 use std::path::Path;
@@ -459,49 +459,6 @@ impl RunShared {
     }
 }
 
-/// Both hooks, `a` first.
-pub fn chain<'a, T: 'a>(a: Option<Hook<'a, T>>, b: Option<Hook<'a, T>>) -> Option<Hook<'a, T>> {
-    match (a, b) {
-        (Some(mut a), Some(mut b)) => Some(Box::new(move |v: &T| {
-            a(v);
-            b(v);
-        })),
-        (a, b) => a.or(b),
-    }
-}
-
-/// The hooks of `first` and `then`, each called in that order. With two
-/// cancel flags the run checks `first`'s, and `then`'s is copied into it
-/// before the first frame and after every frame, so either one stops the run
-/// where it would have stopped alone.
-pub fn chain_hooks<'a>(first: RunHooks<'a>, then: RunHooks<'a>) -> RunHooks<'a> {
-    let (cancel, forward) = match (first.cancel, then.cancel) {
-        (Some(a), Some(b)) => (Some(Arc::clone(&a)), Some((a, b))),
-        (a, b) => (a.or(b), None),
-    };
-    let (forward_start, forward_frame) = match forward {
-        Some((into, from)) => {
-            (Some(forward_cancel(Arc::clone(&into), Arc::clone(&from))), Some(forward_cancel(into, from)))
-        }
-        None => (None, None),
-    };
-    RunHooks {
-        cancel,
-        on_start: chain(chain(first.on_start, then.on_start), forward_start),
-        before_frame: chain(first.before_frame, then.before_frame),
-        after_frame: chain(chain(first.after_frame, then.after_frame), forward_frame),
-    }
-}
-
-/// A hook that sets `into` once `from` is set.
-fn forward_cancel<'a, T: 'a>(into: Arc<AtomicBool>, from: Arc<AtomicBool>) -> Hook<'a, T> {
-    Box::new(move |_: &T| {
-        if from.load(Ordering::SeqCst) {
-            into.store(true, Ordering::SeqCst);
-        }
-    })
-}
-
 /// `e` and its sources, joined by ": " (a source whose text already ends
 /// the message is left out).
 fn error_chain(e: &dyn std::error::Error) -> String {
@@ -529,7 +486,7 @@ fn error_chain(e: &dyn std::error::Error) -> String {
 /// right after the end state is sent.
 ///
 /// `extra` are the caller's hooks (a progress bar; [`RunHooks::default`] for
-/// none), called after the viewer's ([`chain_hooks`]); the page's Stop and
+/// none), called after the viewer's ([`RunHooks::then`]); the page's Stop and
 /// `extra`'s cancel flag both stop the run.
 pub fn run_live(
     config: &RunConfig,
@@ -559,7 +516,7 @@ pub fn run_live(
     let result = {
         let (camera_tx, frame_tx) = (tx.clone(), tx);
         let hooks = RunHooks {
-            cancel: Some(Arc::clone(&shared.cancel)),
+            cancel: vec![Arc::clone(&shared.cancel)],
             on_start: Some(Box::new(move |s: &RunStart| {
                 let _ = camera_tx.send(BridgeMsg::Camera(s.camera.clone()));
             })),
@@ -578,7 +535,7 @@ pub fn run_live(
                 }
             })),
         };
-        colslam_slam::run::run(config, sink, chain_hooks(hooks, extra))
+        colslam_slam::run::run(config, sink, hooks.then(extra))
     };
     // The hooks and the event sink are gone: the bridge drains and ends.
     if let Some(t) = thread {
@@ -905,40 +862,6 @@ mod tests {
         let _ = t.join();
         slot.store(None, false);
         assert!(slot.get().is_none());
-    }
-
-    #[test]
-    fn chained_hooks_run_in_order_and_forward_cancel() {
-        let calls = std::cell::RefCell::new(Vec::new());
-        let (a, b) = (Arc::new(AtomicBool::new(false)), Arc::new(AtomicBool::new(false)));
-        let first = RunHooks {
-            cancel: Some(Arc::clone(&a)),
-            on_start: Some(Box::new(|_: &RunStart| calls.borrow_mut().push("first"))),
-            ..RunHooks::default()
-        };
-        let then = RunHooks {
-            cancel: Some(Arc::clone(&b)),
-            on_start: Some(Box::new(|_: &RunStart| calls.borrow_mut().push("then"))),
-            ..RunHooks::default()
-        };
-        let mut hooks = chain_hooks(first, then);
-        assert!(hooks.cancel.as_ref().is_some_and(|c| Arc::ptr_eq(c, &a)), "the run checks the first flag");
-        assert!(hooks.before_frame.is_none(), "no hook where neither has one");
-        let start = RunStart {
-            camera: Camera::simple_pinhole(640, 480, 500.0, 319.5, 239.5),
-            frames: None,
-            description: String::new(),
-        };
-        let mut on_start = hooks.on_start.take().unwrap_or_else(|| panic!("an on_start hook"));
-        on_start(&start);
-        assert!(!a.load(Ordering::SeqCst));
-        b.store(true, Ordering::SeqCst);
-        on_start(&start);
-        assert!(a.load(Ordering::SeqCst), "the second flag is forwarded");
-        assert_eq!(*calls.borrow(), vec!["first", "then", "first", "then"]);
-        // One flag: used as it is.
-        let only = chain_hooks(RunHooks::default(), RunHooks { cancel: Some(Arc::clone(&b)), ..RunHooks::default() });
-        assert!(only.cancel.is_some_and(|c| Arc::ptr_eq(&c, &b)) && only.on_start.is_none());
     }
 
     #[test]

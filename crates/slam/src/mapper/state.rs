@@ -120,20 +120,12 @@ impl Mapper {
     /// refined since they were made).
     pub fn refresh_keyframes(&mut self, ks: impl IntoIterator<Item = usize>) -> Result<(), SceneError> {
         let version = self.intrinsics_version;
-        let mut camera = None;
+        let camera = self.camera()?.clone();
         for k in ks {
-            let Some(kf) = self.keyframes.get_mut(k).filter(|kf| kf.version != version) else { continue };
-            let camera = match &camera {
-                Some(c) => c,
-                None => camera.insert(
-                    self.rec
-                        .camera(self.camera_id)
-                        .map(|c| c.camera.clone())
-                        .ok_or(SceneError::UnknownCamera(self.camera_id))?,
-                ),
-            };
-            kf.data.normalize_with(camera);
-            kf.version = version;
+            if let Some(kf) = self.keyframes.get_mut(k).filter(|kf| kf.version != version) {
+                kf.data.normalize_with(&camera);
+                kf.version = version;
+            }
         }
         Ok(())
     }

@@ -25,15 +25,20 @@ pub struct ServerArgs {
     /// Port of the viewer (0: any free one; the printed URL names it).
     #[arg(long, default_value_t = DEFAULT_PORT)]
     pub port: u16,
-    /// Address to listen on. The default serves this machine only; the
-    /// viewer has no authentication, so bind elsewhere only on a trusted network.
+    /// Address to listen on. The default serves this machine only. Any
+    /// other address (e.g. 0.0.0.0) lets other machines connect: the viewer
+    /// then makes a random access token, prints it in the URL
+    /// (`http://HOST:PORT/?token=...`) and refuses requests without it
+    /// (401). Whoever holds that URL can run the pipeline and read and write
+    /// files as you: share it only with people you trust. The traffic is
+    /// plain HTTP.
     #[arg(long, default_value = "127.0.0.1")]
     pub bind: IpAddr,
 }
 
 impl ServerArgs {
     fn options(&self) -> ViewerOptions {
-        ViewerOptions { bind: self.bind, port: self.port }
+        ViewerOptions { bind: self.bind, port: self.port, ..Default::default() }
     }
 }
 
@@ -57,7 +62,8 @@ pub struct RunViewArgs {
     /// Port of the viewer (0: any free one; the printed URL names it).
     #[arg(long, default_value_t = DEFAULT_PORT, requires = "view")]
     pub port: u16,
-    /// Address the viewer listens on.
+    /// Address the viewer listens on (off loopback an access token is
+    /// required; see `colslam view --help`).
     #[arg(long, default_value = "127.0.0.1", requires = "view")]
     pub bind: IpAddr,
     /// With --view: exit when the run ends instead of serving on.
@@ -100,7 +106,7 @@ pub fn run(args: &ViewArgs) -> Result<()> {
 
 /// Runs `config` with the viewer following it (`run --view`).
 pub fn run_followed(config: &RunConfig, v: &RunViewArgs, quiet: bool) -> Result<()> {
-    let viewer = Viewer::start(ViewerOptions { bind: v.bind, port: v.port })?;
+    let viewer = Viewer::start(ViewerOptions { bind: v.bind, port: v.port, ..Default::default() })?;
     let shared = Arc::new(RunShared::default());
     let base = config.options.clone();
     viewer.set_controller(Arc::new(ViewController::new(viewer.handle(), Arc::clone(&shared), base)));

@@ -192,8 +192,10 @@ fn view_runs_the_pipeline_from_the_page_api() {
     let seq = synthetic(dir.path());
     let out = dir.path().join("out");
     let (_child, url, _stdout) = spawn_viewer(&["-q".as_ref(), "view".as_ref(), "--port".as_ref(), "0".as_ref()]);
-    let q = format!("/api/max_frames?input={}&skip=3", seq.display());
-    assert_eq!(get_json(&url, &q)["max_frames"], 14, "40 frames with skip 3");
+    let (status, body) = request(&url, "POST", "/api/max_frames", Some(&serde_json::json!({"input": seq, "skip": 3})));
+    assert_eq!(status, 200, "{body}");
+    let bound: Value = serde_json::from_str(&body).expect("JSON");
+    assert_eq!(bound["max_frames"], 14, "40 frames with skip 3");
     let (status, body) = request(
         &url,
         "POST",
@@ -285,7 +287,8 @@ fn browser_run_from_the_settings_panel() {
         "input": seq,
         "output": out,
         // Only on request: the picture shows timings, so it changes from run to run.
-        "shot": std::env::var_os("COLSLAM_SCREENSHOT_DIR").map(|d| PathBuf::from(d).join("viewer-live-run.png")),
+        // (A relative folder is taken from the workspace root, as in the viewer's browser test.)
+        "shot": std::env::var_os("COLSLAM_SCREENSHOT_DIR").map(|d| root.join(d).join("viewer-live-run.png")),
     });
     let config_path = dir.path().join("config.json");
     std::fs::write(&config_path, config.to_string()).expect("config");

@@ -2,29 +2,56 @@
 //! request per connection (`Connection: close`), Server-Sent Events for live
 //! updates. Only what the embedded page needs; it binds to loopback by
 //! default.
+//!
+//! Slow or abandoned clients cannot lock it: every connection is registered
+//! in [`Slots`]; one still sending its request must finish it (head and
+//! body) within the request deadline, whatever its pace, and is the first to
+//! be closed when its client (peer address) or the server as a whole holds
+//! too many; event streams notice a closed socket within [`SSE_POLL`].
+//!
+//! Bound anywhere but loopback, the server asks for an access token (see
+//! [`Access`]).
 
 use crate::export::{ExportFormat, export_reconstruction};
 use crate::state::State;
 use crate::types::{RunController, RunSettings, RunState, ViewerUpdate};
 use serde_json::{Value, json};
-use std::io::{BufRead, BufReader, Read, Write};
-use std::net::{TcpListener, TcpStream};
+use std::io::{ErrorKind, Read, Write};
+use std::net::{IpAddr, Shutdown, TcpListener, TcpStream};
 use std::path::PathBuf;
-use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Condvar, Mutex, MutexGuard};
-use std::time::Duration;
+use std::time::{Duration, Instant};
 
 /// Longest accepted request head (request line + headers).
 const MAX_HEAD_BYTES: usize = 16 * 1024;
 /// Longest accepted request body.
 const MAX_BODY_BYTES: usize = 1024 * 1024;
-/// Connections served at once; more get 503 (each holds a thread).
+/// Requests served at once (head read, answer or event stream under way);
+/// more get 503. Each holds a thread.
 pub(crate) const MAX_CONNECTIONS: usize = 64;
-/// A client that sends its request slower than this is dropped.
-const READ_TIMEOUT: Duration = Duration::from_secs(10);
+/// Connections still sending their request. When full, the one that has
+/// been sending longest is closed, so a crowd of slow clients delays new
+/// ones by nothing.
+pub(crate) const MAX_READING: usize = 128;
+/// Connections one peer address may hold in any phase (a half of the
+/// serving slots, so one client never holds them all). A new connection
+/// over the cap closes that peer's oldest one still sending its request,
+/// else its oldest event stream, else it gets 503. The page needs a few:
+/// its event stream, a request or two, the pictures.
+pub(crate) const MAX_PER_CLIENT: usize = MAX_CONNECTIONS / 2;
+/// Event streams at once; a new one closes the oldest (a browser's
+/// EventSource reconnects by itself).
+pub(crate) const MAX_EVENT_STREAMS: usize = 32;
+/// Default whole-request deadline: the request line, headers and body must
+/// all arrive within this, however they are paced.
+pub const REQUEST_DEADLINE: Duration = Duration::from_secs(10);
 /// A client that does not take data for this long is dropped.
 const WRITE_TIMEOUT: Duration = Duration::from_secs(30);
-/// Event streams send a comment this often so dead clients are noticed.
+/// Event streams check this often whether their client went away.
+const SSE_POLL: Duration = Duration::from_millis(250);
+/// Event streams send a comment this often when nothing changes (proxies
+/// and browsers drop silent streams).
 const KEEPALIVE: Duration = Duration::from_secs(10);
 /// Pause after each event so bursts of updates coalesce into one message.
 const MIN_EVENT_INTERVAL: Duration = Duration::from_millis(25);
@@ -35,12 +62,38 @@ const INDEX_HTML: &str = include_str!("../web/index.html");
 const APP_JS: &str = include_str!("../web/app.js");
 const STYLE_CSS: &str = include_str!("../web/style.css");
 
+/// Who may use the server.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub(crate) enum Access {
+    /// Bound to loopback: only this machine connects, and other web sites
+    /// are kept out by the `Host` and `Origin` checks ([`check_origin`]).
+    Loopback,
+    /// Bound elsewhere: every request must carry `token` (query parameter
+    /// `token`, the cookie the page's index sets, or `Authorization: Bearer`),
+    /// and an `Origin`, when sent, must name the bound address and port.
+    Token {
+        /// The secret (hex), made at start from the OS's random source.
+        token: String,
+        /// The configured address (unspecified: any IP literal).
+        bind: IpAddr,
+        /// The bound port.
+        port: u16,
+    },
+}
+
+/// How the server treats its clients.
+#[derive(Debug, Clone)]
+pub(crate) struct ServerConfig {
+    pub access: Access,
+    pub request_deadline: Duration,
+}
+
 /// State shared by the server threads and the [`crate::Viewer`] handles.
 pub(crate) struct Shared {
     pub state: Mutex<State>,
     pub changed: Condvar,
     pub controller: Mutex<Option<Arc<dyn RunController>>>,
-    pub connections: AtomicUsize,
+    pub slots: Mutex<Slots>,
     pub stop: AtomicBool,
 }
 
@@ -50,7 +103,7 @@ impl Shared {
             state: Mutex::new(State::default()),
             changed: Condvar::new(),
             controller: Mutex::new(None),
-            connections: AtomicUsize::new(0),
+            slots: Mutex::new(Slots::default()),
             stop: AtomicBool::new(false),
         }
     }
@@ -60,6 +113,12 @@ impl Shared {
     /// method leaves it consistent between statements that bump versions.
     pub fn lock(&self) -> MutexGuard<'_, State> {
         self.state.lock().unwrap_or_else(|e| e.into_inner())
+    }
+
+    /// Locks the connection registry (recovered when poisoned: each
+    /// [`Slots`] method leaves it consistent).
+    pub fn slots(&self) -> MutexGuard<'_, Slots> {
+        self.slots.lock().unwrap_or_else(|e| e.into_inner())
     }
 
     /// Applies `f` to the state and wakes the event streams.
@@ -73,42 +132,158 @@ impl Shared {
     }
 }
 
+/// What a connection is doing.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) enum Phase {
+    /// Its request has not fully arrived.
+    Reading,
+    /// Its request is being answered.
+    Serving,
+    /// It follows the event stream.
+    Events,
+}
+
+struct Slot {
+    id: u64,
+    peer: IpAddr,
+    phase: Phase,
+    since: Instant,
+    /// A handle on the socket to close it from another thread.
+    stream: TcpStream,
+}
+
+/// The open connections. Closing one (eviction) removes it here and shuts
+/// its socket down, which ends its thread's blocking read or write.
+#[derive(Default)]
+pub(crate) struct Slots {
+    next_id: u64,
+    open: Vec<Slot>,
+}
+
+impl Slots {
+    /// Open connections in `phase` (all when `None`).
+    pub fn count(&self, phase: Option<Phase>) -> usize {
+        self.open.iter().filter(|s| phase.is_none_or(|p| s.phase == p)).count()
+    }
+
+    fn serving(&self) -> usize {
+        self.open.iter().filter(|s| s.phase != Phase::Reading).count()
+    }
+
+    /// Closes the oldest connection matching `pick`; false when none does.
+    fn evict_oldest(&mut self, pick: impl Fn(&Slot) -> bool) -> bool {
+        let oldest = self.open.iter().enumerate().filter(|(_, s)| pick(s)).min_by_key(|(_, s)| s.since).map(|(i, _)| i);
+        match oldest {
+            Some(i) => {
+                let slot = self.open.swap_remove(i);
+                // An error means the socket is already closed: the goal.
+                let _ = slot.stream.shutdown(Shutdown::Both);
+                true
+            }
+            None => false,
+        }
+    }
+
+    /// Registers a new connection from `peer` (in [`Phase::Reading`]),
+    /// making room as the caps above say; `None`: refuse it.
+    fn admit(&mut self, peer: IpAddr, stream: TcpStream) -> Option<u64> {
+        if self.open.iter().filter(|s| s.peer == peer).count() >= MAX_PER_CLIENT
+            && !self.evict_oldest(|s| s.peer == peer && s.phase == Phase::Reading)
+            && !self.evict_oldest(|s| s.peer == peer && s.phase == Phase::Events)
+        {
+            return None;
+        }
+        if self.count(Some(Phase::Reading)) >= MAX_READING {
+            self.evict_oldest(|s| s.phase == Phase::Reading);
+        }
+        self.next_id += 1;
+        let id = self.next_id;
+        self.open.push(Slot { id, peer, phase: Phase::Reading, since: Instant::now(), stream });
+        Some(id)
+    }
+
+    /// Moves connection `id` to `phase`. False when it was closed meanwhile,
+    /// or (to [`Phase::Serving`]) when every serving slot is taken. A new
+    /// event stream over [`MAX_EVENT_STREAMS`] closes the oldest one.
+    fn promote(&mut self, id: u64, phase: Phase) -> bool {
+        if !self.is_open(id) {
+            return false;
+        }
+        match phase {
+            Phase::Serving if self.serving() >= MAX_CONNECTIONS => return false,
+            Phase::Events if self.count(Some(Phase::Events)) >= MAX_EVENT_STREAMS => {
+                // `id` is serving, not streaming yet, so this closes another.
+                self.evict_oldest(|s| s.phase == Phase::Events);
+            }
+            _ => {}
+        }
+        let slot = self.open.iter_mut().find(|s| s.id == id);
+        slot.map(|slot| {
+            slot.phase = phase;
+            slot.since = Instant::now();
+        })
+        .is_some()
+    }
+
+    fn is_open(&self, id: u64) -> bool {
+        self.open.iter().any(|s| s.id == id)
+    }
+
+    fn release(&mut self, id: u64) {
+        self.open.retain(|s| s.id != id);
+    }
+}
+
 /// Accepts connections until `shared.stop` is set.
-pub(crate) fn serve(listener: TcpListener, shared: Arc<Shared>) {
+pub(crate) fn serve(listener: TcpListener, shared: Arc<Shared>, config: Arc<ServerConfig>) {
     for conn in listener.incoming() {
         if shared.stop.load(Ordering::SeqCst) {
             break;
         }
-        let Ok(stream) = conn else { continue };
-        let shared = Arc::clone(&shared);
-        if shared.connections.fetch_add(1, Ordering::SeqCst) >= MAX_CONNECTIONS {
-            shared.connections.fetch_sub(1, Ordering::SeqCst);
-            let mut s = stream;
-            let _ = respond(&mut s, 503, "text/plain", b"too many connections");
+        let Ok(mut stream) = conn else { continue };
+        // A refusal must not stall the accept loop on a client that reads nothing.
+        if stream.set_write_timeout(Some(WRITE_TIMEOUT)).is_err() {
             continue;
         }
+        let peer = match stream.peer_addr() {
+            Ok(a) => a.ip(),
+            Err(_) => continue,
+        };
+        let admitted = stream.try_clone().ok().and_then(|handle| shared.slots().admit(peer, handle));
+        let Some(id) = admitted else {
+            let _ = stream.set_write_timeout(Some(Duration::from_secs(1)));
+            let _ = respond(&mut stream, 503, "text/plain", b"too many connections");
+            continue;
+        };
         let spawned = std::thread::Builder::new().name("colslam-viewer-conn".into()).spawn({
             let shared = Arc::clone(&shared);
+            let config = Arc::clone(&config);
             move || {
                 // Errors here are a client going away: nothing to report.
-                let _ = handle(stream, &shared);
-                shared.connections.fetch_sub(1, Ordering::SeqCst);
+                let _ = handle(stream, id, &shared, &config);
+                shared.slots().release(id);
             }
         });
         if spawned.is_err() {
-            shared.connections.fetch_sub(1, Ordering::SeqCst);
+            shared.slots().release(id);
         }
     }
 }
 
 /// A parsed request.
-#[derive(Debug)]
-pub(crate) struct Request {
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Request {
+    /// `GET`, `POST`, ...
     pub method: String,
+    /// The target's path, percent-decoded.
     pub path: String,
+    /// The target's query, decoded, in order.
     pub query: Vec<(String, String)>,
     /// Headers with lower-case names.
     pub headers: Vec<(String, String)>,
+    /// The body's announced length (`Content-Length`, 0 without one).
+    pub content_length: usize,
+    /// The body ([`parse_request_head`] leaves it empty).
     pub body: Vec<u8>,
 }
 
@@ -123,10 +298,13 @@ impl Request {
     }
 }
 
-/// Why a request could not be parsed: the status to answer with.
-#[derive(Debug)]
-pub(crate) struct BadRequest {
+/// Why a request could not be parsed or is refused: the status to answer with.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error("{status}: {message}")]
+pub struct BadRequest {
+    /// The HTTP status.
     pub status: u16,
+    /// The reason, sent as `{"error": message}`.
     pub message: String,
 }
 
@@ -134,26 +312,29 @@ fn bad(status: u16, message: impl Into<String>) -> BadRequest {
     BadRequest { status, message: message.into() }
 }
 
-/// Reads one request from `r`.
-pub(crate) fn read_request(r: &mut impl BufRead) -> Result<Request, BadRequest> {
-    let mut head = Vec::new();
-    loop {
-        let mut line = Vec::new();
-        let n =
-            r.by_ref().take((MAX_HEAD_BYTES + 1 - head.len().min(MAX_HEAD_BYTES)) as u64).read_until(b'\n', &mut line);
-        let n = n.map_err(|e| bad(400, format!("cannot read request: {e}")))?;
-        if n == 0 {
-            return Err(bad(400, "connection closed before the request ended"));
+/// Where the head ends in `buf` (just past the blank line), searching from
+/// `from` (so a head arriving byte by byte is scanned once).
+fn head_end(buf: &[u8], from: usize) -> Option<usize> {
+    (from..buf.len()).find_map(|i| {
+        let rest = buf.get(i..)?;
+        if rest.starts_with(b"\n\n") {
+            Some(i + 2)
+        } else if rest.starts_with(b"\r\n\r\n") {
+            Some(i + 4)
+        } else {
+            None
         }
-        head.extend_from_slice(&line);
-        if head.len() > MAX_HEAD_BYTES {
-            return Err(bad(431, "request head too large"));
-        }
-        if line == b"\r\n" || line == b"\n" {
-            break;
-        }
+    })
+}
+
+/// Parses a request head: the bytes up to and including the blank line that
+/// ends it (a missing blank line is accepted). Pure, for tests and fuzzing;
+/// [`read_request`] reads the head and then the body it announces.
+pub fn parse_request_head(head: &[u8]) -> Result<Request, BadRequest> {
+    if head.len() > MAX_HEAD_BYTES {
+        return Err(bad(431, "request head too large"));
     }
-    let head = String::from_utf8(head).map_err(|_| bad(400, "request head is not UTF-8"))?;
+    let head = std::str::from_utf8(head).map_err(|_| bad(400, "request head is not UTF-8"))?;
     let mut lines = head.lines();
     let request_line = lines.next().unwrap_or_default();
     let mut parts = request_line.split_whitespace();
@@ -163,22 +344,25 @@ pub(crate) fn read_request(r: &mut impl BufRead) -> Result<Request, BadRequest> 
     if !version.starts_with("HTTP/1.") {
         return Err(bad(505, format!("unsupported protocol {version}")));
     }
-    let mut content_length = 0usize;
+    let mut content_length: Option<usize> = None;
     let mut headers = Vec::new();
     for h in lines {
         if let Some((k, v)) = h.split_once(':') {
             let (k, v) = (k.trim().to_ascii_lowercase(), v.trim());
             if k == "content-length" {
-                content_length = v.parse().map_err(|_| bad(400, format!("bad Content-Length {v:?}")))?;
+                let n = v.parse().map_err(|_| bad(400, format!("bad Content-Length {v:?}")))?;
+                if content_length.is_some_and(|c| c != n) {
+                    return Err(bad(400, "conflicting Content-Length headers"));
+                }
+                content_length = Some(n);
             }
             headers.push((k, v.to_string()));
         }
     }
+    let content_length = content_length.unwrap_or(0);
     if content_length > MAX_BODY_BYTES {
         return Err(bad(413, format!("body of {content_length} bytes exceeds {MAX_BODY_BYTES}")));
     }
-    let mut body = vec![0u8; content_length];
-    r.read_exact(&mut body).map_err(|e| bad(400, format!("body shorter than Content-Length: {e}")))?;
     let (path, query) = target.split_once('?').unwrap_or((target, ""));
     let query = query
         .split('&')
@@ -188,7 +372,74 @@ pub(crate) fn read_request(r: &mut impl BufRead) -> Result<Request, BadRequest> 
             (percent_decode(k), percent_decode(v))
         })
         .collect();
-    Ok(Request { method: method.to_string(), path: percent_decode(path), query, headers, body })
+    Ok(Request {
+        method: method.to_string(),
+        path: percent_decode(path),
+        query,
+        headers,
+        content_length,
+        body: Vec::new(),
+    })
+}
+
+fn read_failed(e: &std::io::Error) -> BadRequest {
+    match e.kind() {
+        ErrorKind::TimedOut | ErrorKind::WouldBlock => bad(408, "the request did not arrive in time"),
+        _ => bad(400, format!("cannot read request: {e}")),
+    }
+}
+
+/// Reads one request from `r`: the head, then the body it announces.
+pub(crate) fn read_request(r: &mut impl Read) -> Result<Request, BadRequest> {
+    let mut buf = Vec::with_capacity(1024);
+    let mut chunk = [0u8; 4096];
+    let end = loop {
+        // The terminator may straddle two reads: rescan the last 3 bytes.
+        if let Some(end) = head_end(&buf, buf.len().saturating_sub(chunk.len() + 3)) {
+            break end;
+        }
+        if buf.len() > MAX_HEAD_BYTES {
+            return Err(bad(431, "request head too large"));
+        }
+        let n = r.read(&mut chunk).map_err(|e| read_failed(&e))?;
+        if n == 0 {
+            return Err(bad(400, "connection closed before the request ended"));
+        }
+        buf.extend_from_slice(chunk.get(..n).unwrap_or_default());
+    };
+    let (head, rest) = buf.split_at(end.min(buf.len()));
+    let mut req = parse_request_head(head)?;
+    let mut body = rest.to_vec();
+    body.truncate(req.content_length);
+    while body.len() < req.content_length {
+        let want = (req.content_length - body.len()).min(chunk.len());
+        let n = r.read(chunk.get_mut(..want).unwrap_or_default()).map_err(|e| read_failed(&e))?;
+        if n == 0 {
+            return Err(bad(400, "body shorter than Content-Length"));
+        }
+        body.extend_from_slice(chunk.get(..n).unwrap_or_default());
+    }
+    req.body = body;
+    Ok(req)
+}
+
+/// A socket reader that fails once `deadline` passes: each read waits at
+/// most until then, so a client dripping bytes cannot stretch its request.
+struct DeadlineReader<'a> {
+    stream: &'a TcpStream,
+    deadline: Instant,
+}
+
+impl Read for DeadlineReader<'_> {
+    fn read(&mut self, buf: &mut [u8]) -> std::io::Result<usize> {
+        let left = self.deadline.saturating_duration_since(Instant::now());
+        if left.is_zero() {
+            return Err(std::io::Error::new(ErrorKind::TimedOut, "request deadline passed"));
+        }
+        self.stream.set_read_timeout(Some(left))?;
+        let mut s = self.stream;
+        s.read(buf)
+    }
 }
 
 /// Decodes `%XX` escapes and `+` (as space); invalid escapes stay as they are.
@@ -233,10 +484,12 @@ fn reason(status: u16) -> &'static str {
         200 => "OK",
         204 => "No Content",
         400 => "Bad Request",
+        401 => "Unauthorized",
+        403 => "Forbidden",
         404 => "Not Found",
         405 => "Method Not Allowed",
+        408 => "Request Timeout",
         409 => "Conflict",
-        403 => "Forbidden",
         413 => "Payload Too Large",
         415 => "Unsupported Media Type",
         431 => "Request Header Fields Too Large",
@@ -247,15 +500,21 @@ fn reason(status: u16) -> &'static str {
     }
 }
 
-fn respond(s: &mut TcpStream, status: u16, content_type: &str, body: &[u8]) -> std::io::Result<()> {
+/// Writes a whole response; `extra` holds further header lines, each ending
+/// in `\r\n`.
+fn respond_with(s: &mut TcpStream, status: u16, content_type: &str, extra: &str, body: &[u8]) -> std::io::Result<()> {
     let head = format!(
-        "HTTP/1.1 {status} {}\r\nContent-Type: {content_type}\r\nContent-Length: {}\r\nCache-Control: no-store\r\nConnection: close\r\n\r\n",
+        "HTTP/1.1 {status} {}\r\nContent-Type: {content_type}\r\nContent-Length: {}\r\nCache-Control: no-store\r\nConnection: close\r\n{extra}\r\n",
         reason(status),
         body.len()
     );
     s.write_all(head.as_bytes())?;
     s.write_all(body)?;
     s.flush()
+}
+
+fn respond(s: &mut TcpStream, status: u16, content_type: &str, body: &[u8]) -> std::io::Result<()> {
+    respond_with(s, status, content_type, "", body)
 }
 
 fn respond_json(s: &mut TcpStream, status: u16, v: &Value) -> std::io::Result<()> {
@@ -266,22 +525,28 @@ fn respond_error(s: &mut TcpStream, status: u16, message: &str) -> std::io::Resu
     respond_json(s, status, &json!({ "error": message }))
 }
 
-fn handle(mut stream: TcpStream, shared: &Shared) -> std::io::Result<()> {
-    stream.set_read_timeout(Some(READ_TIMEOUT))?;
+/// One connection being served.
+struct Conn<'a> {
+    shared: &'a Shared,
+    config: &'a ServerConfig,
+    id: u64,
+}
+
+fn handle(mut stream: TcpStream, id: u64, shared: &Shared, config: &ServerConfig) -> std::io::Result<()> {
     stream.set_write_timeout(Some(WRITE_TIMEOUT))?;
-    let req = {
-        let mut reader = BufReader::new(stream.try_clone()?);
-        read_request(&mut reader)
-    };
+    let deadline = Instant::now() + config.request_deadline;
+    let req = read_request(&mut DeadlineReader { stream: &stream, deadline });
     let req = match req {
         Ok(r) => r,
         Err(e) => return respond_error(&mut stream, e.status, &e.message),
     };
-    let loopback = stream.local_addr().map(|a| a.ip().is_loopback()).unwrap_or(false);
-    if let Err(e) = check_origin(&req, loopback) {
+    if !shared.slots().promote(id, Phase::Serving) {
+        return respond_error(&mut stream, 503, "too many connections");
+    }
+    if let Err(e) = check_access(&req, &config.access) {
         return respond_error(&mut stream, e.status, &e.message);
     }
-    route(&mut stream, &req, shared)
+    route(&mut stream, &req, &Conn { shared, config, id })
 }
 
 /// Host names a loopback-bound viewer answers to. Anything else in `Host` is
@@ -289,26 +554,50 @@ fn handle(mut stream: TcpStream, shared: &Shared) -> std::io::Result<()> {
 const LOOPBACK_HOSTS: [&str; 3] = ["127.0.0.1", "localhost", "[::1]"];
 
 /// Guards against other web sites driving the viewer through the user's
-/// browser (it reads and writes files on request): a loopback-bound server
-/// accepts only loopback `Host` names; a request carrying an `Origin` must
-/// come from the page's own origin; POST bodies must be
-/// `application/json`, which a cross-site form cannot send without a CORS
-/// preflight (answered 405 here, so the browser refuses).
-fn check_origin(req: &Request, loopback: bool) -> Result<(), BadRequest> {
-    let host = req.header("host");
-    if loopback && let Some(h) = host {
-        let name = match h.rsplit_once(':') {
-            Some((n, port)) if port.bytes().all(|b| b.is_ascii_digit()) => n,
-            _ => h,
-        };
-        if !LOOPBACK_HOSTS.iter().any(|l| l.eq_ignore_ascii_case(name)) {
-            return Err(bad(403, format!("host {h:?} is not served (the viewer answers on loopback only)")));
+/// browser (it reads and writes files and starts runs on request).
+///
+/// Loopback-bound, the server accepts only loopback `Host` names, and a
+/// request carrying an `Origin` must come from the page's own origin.
+/// Bound elsewhere, a `Host` proves nothing (DNS rebinding makes any name
+/// point here), so every request needs the access token (401 without), and
+/// an `Origin` must name the bound address and port (403 otherwise).
+///
+/// In both cases POST bodies must be `application/json`, which a cross-site
+/// form cannot send without a CORS preflight (answered 405 here, so the
+/// browser refuses). Every request with an effect is a POST.
+pub(crate) fn check_access(req: &Request, access: &Access) -> Result<(), BadRequest> {
+    match access {
+        Access::Loopback => {
+            let host = req.header("host");
+            if let Some(h) = host {
+                let name = match h.rsplit_once(':') {
+                    Some((n, port)) if port.bytes().all(|b| b.is_ascii_digit()) => n,
+                    _ => h,
+                };
+                if !LOOPBACK_HOSTS.iter().any(|l| l.eq_ignore_ascii_case(name)) {
+                    return Err(bad(403, format!("host {h:?} is not served (the viewer answers on loopback only)")));
+                }
+            }
+            if let Some(origin) = req.header("origin") {
+                let same =
+                    host.is_some_and(|h| origin.strip_prefix("http://").is_some_and(|o| o.eq_ignore_ascii_case(h)));
+                if !same {
+                    return Err(bad(403, format!("cross-origin request from {origin:?} refused")));
+                }
+            }
         }
-    }
-    if let Some(origin) = req.header("origin") {
-        let same = host.is_some_and(|h| origin.strip_prefix("http://").is_some_and(|o| o.eq_ignore_ascii_case(h)));
-        if !same {
-            return Err(bad(403, format!("cross-origin request from {origin:?} refused")));
+        Access::Token { token, bind, port } => {
+            if !carries_token(req, token, *port) {
+                return Err(bad(
+                    401,
+                    "access token missing or wrong: open the URL the viewer printed (it ends in ?token=...)",
+                ));
+            }
+            if let Some(origin) = req.header("origin")
+                && !origin_allowed(origin, *bind, *port)
+            {
+                return Err(bad(403, format!("cross-origin request from {origin:?} refused")));
+            }
         }
     }
     if req.method == "POST" {
@@ -320,19 +609,91 @@ fn check_origin(req: &Request, loopback: bool) -> Result<(), BadRequest> {
     Ok(())
 }
 
-fn route(s: &mut TcpStream, req: &Request, shared: &Shared) -> std::io::Result<()> {
+/// The cookie that carries the token once the index was opened with it.
+/// Named by port: browsers share a host's cookies across its ports.
+fn token_cookie(port: u16) -> String {
+    format!("colslam_token_{port}")
+}
+
+/// Equality of two secrets in time independent of where they differ.
+fn same_secret(a: &[u8], b: &[u8]) -> bool {
+    a.len() == b.len() && std::hint::black_box(a.iter().zip(b).fold(0u8, |acc, (x, y)| acc | (x ^ y))) == 0
+}
+
+/// Whether the request carries `token`: in its query, its cookie or an
+/// `Authorization: Bearer` header.
+fn carries_token(req: &Request, token: &str, port: u16) -> bool {
+    let name = token_cookie(port);
+    let from_cookie = req
+        .headers
+        .iter()
+        .filter(|(k, _)| k == "cookie")
+        .flat_map(|(_, v)| v.split(';'))
+        .filter_map(|c| c.trim().split_once('='))
+        .filter(|(k, _)| *k == name)
+        .map(|(_, v)| v);
+    let from_bearer = req.header("authorization").and_then(|a| a.strip_prefix("Bearer ")).map(str::trim);
+    let from_query = req.param("token");
+    // Every candidate is compared (no early exit on the first match).
+    from_query
+        .into_iter()
+        .chain(from_bearer)
+        .chain(from_cookie)
+        .fold(false, |ok, c| ok | same_secret(c.as_bytes(), token.as_bytes()))
+}
+
+/// Whether `origin` (e.g. `http://192.168.1.5:8765`) is the page's own
+/// origin for a server bound to `bind`:`port`. For an unspecified bind
+/// (0.0.0.0, ::) any IP literal with the right port is; host names never
+/// are except `localhost` (a DNS name can be pointed here by anyone).
+pub(crate) fn origin_allowed(origin: &str, bind: IpAddr, port: u16) -> bool {
+    let Some(authority) = origin.strip_prefix("http://") else { return false };
+    let (host, origin_port) = match authority.rsplit_once(':') {
+        Some((h, p)) if !h.is_empty() && !p.contains(']') => (h, p.parse::<u16>().ok()),
+        _ => (authority, Some(80)),
+    };
+    if origin_port != Some(port) {
+        return false;
+    }
+    let literal = host.strip_prefix('[').and_then(|h| h.strip_suffix(']')).unwrap_or(host);
+    match literal.parse::<IpAddr>() {
+        Ok(ip) => ip == bind || bind.is_unspecified(),
+        Err(_) => bind.is_unspecified() && host.eq_ignore_ascii_case("localhost"),
+    }
+}
+
+/// The `Set-Cookie` line for the index when it was opened with a valid
+/// token in its URL: the page's later requests (fetch, EventSource,
+/// pictures) then carry it without knowing it. HttpOnly: scripts cannot
+/// read it; SameSite=Strict: other sites' requests do not carry it.
+fn index_cookie(req: &Request, access: &Access) -> String {
+    match access {
+        Access::Token { token, port, .. }
+            if req.param("token").is_some_and(|t| same_secret(t.as_bytes(), token.as_bytes())) =>
+        {
+            format!("Set-Cookie: {}={token}; Path=/; HttpOnly; SameSite=Strict\r\n", token_cookie(*port))
+        }
+        _ => String::new(),
+    }
+}
+
+fn route(s: &mut TcpStream, req: &Request, conn: &Conn) -> std::io::Result<()> {
+    let shared = conn.shared;
     let get = req.method == "GET";
     let post = req.method == "POST";
     match req.path.as_str() {
-        "/" | "/index.html" if get => respond(s, 200, "text/html; charset=utf-8", INDEX_HTML.as_bytes()),
+        "/" | "/index.html" if get => {
+            let cookie = index_cookie(req, &conn.config.access);
+            respond_with(s, 200, "text/html; charset=utf-8", &cookie, INDEX_HTML.as_bytes())
+        }
         "/app.js" if get => respond(s, 200, "text/javascript; charset=utf-8", APP_JS.as_bytes()),
         "/style.css" if get => respond(s, 200, "text/css; charset=utf-8", STYLE_CSS.as_bytes()),
         "/favicon.ico" if get => respond(s, 204, "image/x-icon", b""),
-        "/events" if get => event_stream(s, shared),
+        "/events" if get => event_stream(s, conn),
         "/api/state" if get => api_state(s, req, shared),
         "/api/frame.png" if get => picture(s, shared, false),
         "/api/keyframe.png" if get => picture(s, shared, true),
-        "/api/max_frames" if get => api_max_frames(s, req, shared),
+        "/api/max_frames" if post => api_max_frames(s, req, shared),
         "/api/run" if post => api_run(s, req, shared),
         "/api/stop" if post => api_stop(s, shared),
         "/api/load" if post => api_load(s, req, shared),
@@ -363,7 +724,29 @@ fn api_state(s: &mut TcpStream, req: &Request, shared: &Shared) -> std::io::Resu
     respond_json(s, 200, &body)
 }
 
-fn event_stream(s: &mut TcpStream, shared: &Shared) -> std::io::Result<()> {
+/// Whether the client closed its end: a non-blocking peek sees end of file
+/// (or an error) at once, where a write would succeed into the socket's
+/// buffer and fail only later.
+fn peer_gone(s: &TcpStream) -> bool {
+    if s.set_nonblocking(true).is_err() {
+        return true;
+    }
+    let peeked = s.peek(&mut [0u8; 1]);
+    if s.set_nonblocking(false).is_err() {
+        return true;
+    }
+    match peeked {
+        Ok(0) => true,
+        Ok(_) => false,
+        Err(e) => e.kind() != ErrorKind::WouldBlock,
+    }
+}
+
+fn event_stream(s: &mut TcpStream, conn: &Conn) -> std::io::Result<()> {
+    let shared = conn.shared;
+    if !shared.slots().promote(conn.id, Phase::Events) {
+        return Ok(());
+    }
     s.write_all(
         b"HTTP/1.1 200 OK\r\nContent-Type: text/event-stream\r\nCache-Control: no-store\r\nConnection: close\r\nX-Accel-Buffering: no\r\n\r\n",
     )?;
@@ -374,12 +757,13 @@ fn event_stream(s: &mut TcpStream, shared: &Shared) -> std::io::Result<()> {
         (st.epoch, st.version, st.snapshot_json())
     };
     send_event(s, epoch, version, &first)?;
+    let mut last_write = Instant::now();
     loop {
         let msg = {
             let st = shared.lock();
             let (st, _) = shared
                 .changed
-                .wait_timeout_while(st, KEEPALIVE, |st| !st.shutdown && st.epoch == epoch && st.version == version)
+                .wait_timeout_while(st, SSE_POLL, |st| !st.shutdown && st.epoch == epoch && st.version == version)
                 .unwrap_or_else(|e| e.into_inner());
             if st.shutdown || shared.stop.load(Ordering::SeqCst) {
                 return Ok(());
@@ -392,16 +776,25 @@ fn event_stream(s: &mut TcpStream, shared: &Shared) -> std::io::Result<()> {
                 None
             }
         };
+        // A client that left, or a stream closed to make room, ends here.
+        if peer_gone(s) || !shared.slots().is_open(conn.id) {
+            return Ok(());
+        }
         match msg {
             Some((e, v, body)) => {
                 send_event(s, e, v, &body)?;
                 epoch = e;
                 version = v;
+                last_write = Instant::now();
                 std::thread::sleep(MIN_EVENT_INTERVAL);
             }
-            None => s.write_all(b": keepalive\n\n")?,
+            None if last_write.elapsed() >= KEEPALIVE => {
+                s.write_all(b": keepalive\n\n")?;
+                s.flush()?;
+                last_write = Instant::now();
+            }
+            None => {}
         }
-        s.flush()?;
     }
 }
 
@@ -439,19 +832,29 @@ fn path_field(v: &Value, key: &str) -> Result<PathBuf, String> {
     }
 }
 
+/// `POST /api/max_frames {input, skip}`: the bound of the max-frames
+/// slider. A POST because it opens the input (and may start ffprobe):
+/// requests with effects outside the server pass the POST checks.
 fn api_max_frames(s: &mut TcpStream, req: &Request, shared: &Shared) -> std::io::Result<()> {
     let Some(ctl) = shared.controller() else {
         return respond_error(s, 503, "no pipeline attached (started with `colslam view`)");
     };
-    let input = req.param("input").map(str::trim).unwrap_or("");
-    if input.is_empty() {
-        return respond_error(s, 400, "input path is missing");
-    }
-    let skip = match req.param("skip").unwrap_or("1").parse::<i64>() {
-        Ok(k) if k >= 1 => usize::try_from(k).unwrap_or(usize::MAX),
-        _ => return respond_error(s, 400, "frame skip must be an integer of at least 1"),
+    let parsed = json_body(req).and_then(|v| {
+        let input = path_field(&v, "input")?;
+        let skip = match v.get("skip") {
+            None | Some(Value::Null) => Some(1),
+            Some(Value::Number(n)) => n.as_u64().filter(|k| *k >= 1),
+            Some(Value::String(t)) => t.trim().parse::<u64>().ok().filter(|k| *k >= 1),
+            Some(_) => None,
+        };
+        let skip = skip.ok_or("frame skip must be an integer of at least 1")?;
+        Ok((input, usize::try_from(skip).unwrap_or(usize::MAX)))
+    });
+    let (input, skip) = match parsed {
+        Ok(p) => p,
+        Err(e) => return respond_error(s, 400, &e),
     };
-    match ctl.max_frames_for(std::path::Path::new(input), skip) {
+    match ctl.max_frames_for(&input, skip) {
         Ok(n) => respond_json(s, 200, &json!({ "max_frames": n })),
         Err(e) => respond_error(s, 400, &e),
     }
@@ -461,13 +864,10 @@ fn api_run(s: &mut TcpStream, req: &Request, shared: &Shared) -> std::io::Result
     let Some(ctl) = shared.controller() else {
         return respond_error(s, 503, "no pipeline attached: start the viewer with `colslam run ... --view` to run");
     };
-    let settings: RunSettings = match serde_json::from_slice(&req.body) {
+    let settings = match RunSettings::from_json(&req.body) {
         Ok(v) => v,
-        Err(e) => return respond_error(s, 400, &format!("invalid settings: {e}")),
+        Err(e) => return respond_error(s, 400, &e.to_string()),
     };
-    if let Err(e) = settings.validate() {
-        return respond_error(s, 400, &format!("invalid settings: {e}"));
-    }
     {
         let st = shared.lock();
         if st_running(&st) {

@@ -38,15 +38,19 @@ mod types;
 
 pub use demo::demo_reconstruction;
 pub use export::{ExportError, ExportFormat, export_reconstruction, tum_trajectory};
+pub use http::REQUEST_DEADLINE;
+/// The server's request parser, as a pure function on bytes (for fuzzing).
+#[doc(hidden)]
+pub use http::{BadRequest, Request, parse_request_head};
 pub use live::{MAX_IMAGES_IN_FLIGHT, RunShared, ViewController, run_args_from_settings, run_live};
 pub use types::{
-    Extractor, FrameUpdate, KeyframeUpdate, MapDelta, Matcher, RunController, RunSettings, RunState, Summary,
-    ViewerCamera, ViewerPoint, ViewerUpdate,
+    Extractor, FrameUpdate, KeyframeUpdate, MapDelta, Matcher, RunController, RunSettings, RunState, SettingsError,
+    Summary, ViewerCamera, ViewerPoint, ViewerUpdate,
 };
 
 use colslam_image::Image;
 use colslam_scene::Reconstruction;
-use http::Shared;
+use http::{Access, ServerConfig, Shared};
 use std::net::{IpAddr, Ipv4Addr, SocketAddr, TcpListener, TcpStream};
 use std::sync::Arc;
 use std::sync::atomic::Ordering;
@@ -62,20 +66,29 @@ pub const DEFAULT_PORT: u16 = 8765;
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct ViewerOptions {
     /// Address to bind. Default 127.0.0.1 (only this machine can connect).
+    /// Any other address makes the server require an access token, made at
+    /// start and part of [`Viewer::url`].
     pub bind: IpAddr,
     /// Port; 0 picks a free one. Default [`DEFAULT_PORT`].
     pub port: u16,
+    /// Time a client has to send its whole request (head and body), however
+    /// it paces it; a slower one is answered 408 and dropped. Default
+    /// [`REQUEST_DEADLINE`].
+    pub request_deadline: std::time::Duration,
 }
 
 impl Default for ViewerOptions {
     fn default() -> Self {
-        Self { bind: IpAddr::V4(Ipv4Addr::LOCALHOST), port: DEFAULT_PORT }
+        Self { bind: IpAddr::V4(Ipv4Addr::LOCALHOST), port: DEFAULT_PORT, request_deadline: REQUEST_DEADLINE }
     }
 }
 
 impl ViewerOptions {
-    /// Every address and port is acceptable; kept for the Options convention.
+    /// The request deadline must be positive.
     pub fn validate(&self) -> Result<(), ViewerError> {
+        if self.request_deadline.is_zero() {
+            return Err(ViewerError::Options("the request deadline must be positive".into()));
+        }
         Ok(())
     }
 }
@@ -94,6 +107,19 @@ pub enum ViewerError {
     /// The server thread could not be spawned.
     #[error("cannot start the viewer thread: {0}")]
     Thread(std::io::Error),
+    /// The options are out of range.
+    #[error("invalid viewer options: {0}")]
+    Options(String),
+    /// No access token could be made (the OS's random source failed).
+    #[error("cannot make the viewer's access token: {0}")]
+    Token(String),
+}
+
+/// A random access token: 128 bits from the OS, in hex.
+fn random_token() -> Result<String, ViewerError> {
+    let mut bytes = [0u8; 16];
+    getrandom::fill(&mut bytes).map_err(|e| ViewerError::Token(e.to_string()))?;
+    Ok(bytes.iter().map(|b| format!("{b:02x}")).collect())
 }
 
 /// A cheap, cloneable handle that feeds the viewer from any thread.
@@ -137,6 +163,7 @@ impl ViewerHandle {
 pub struct Viewer {
     handle: ViewerHandle,
     addr: SocketAddr,
+    token: Option<String>,
     thread: Option<JoinHandle<()>>,
 }
 
@@ -147,15 +174,25 @@ impl Viewer {
         let want = SocketAddr::new(options.bind, options.port);
         let listener = TcpListener::bind(want).map_err(|source| ViewerError::Bind { addr: want, source })?;
         let addr = listener.local_addr().map_err(|source| ViewerError::Bind { addr: want, source })?;
+        // Off loopback, other machines and (through DNS rebinding) any web
+        // page the user opens can reach the server: only holders of the
+        // printed URL may use it.
+        let (access, token) = if options.bind.is_loopback() {
+            (Access::Loopback, None)
+        } else {
+            let token = random_token()?;
+            (Access::Token { token: token.clone(), bind: options.bind, port: addr.port() }, Some(token))
+        };
+        let config = Arc::new(ServerConfig { access, request_deadline: options.request_deadline });
         let shared = Arc::new(Shared::new());
         let thread = std::thread::Builder::new()
             .name("colslam-viewer".into())
             .spawn({
                 let shared = Arc::clone(&shared);
-                move || http::serve(listener, shared)
+                move || http::serve(listener, shared, config)
             })
             .map_err(ViewerError::Thread)?;
-        Ok(Viewer { handle: ViewerHandle { shared }, addr, thread: Some(thread) })
+        Ok(Viewer { handle: ViewerHandle { shared }, addr, token, thread: Some(thread) })
     }
 
     /// The bound address (the real port when 0 was asked for).
@@ -163,9 +200,18 @@ impl Viewer {
         self.addr
     }
 
-    /// The page's URL, e.g. `http://127.0.0.1:8765/`.
+    /// The page's URL, e.g. `http://127.0.0.1:8765/`; off loopback with the
+    /// access token, `http://192.168.1.5:8765/?token=...`.
     pub fn url(&self) -> String {
-        format!("http://{}/", self.addr)
+        match &self.token {
+            Some(t) => format!("http://{}/?token={t}", self.addr),
+            None => format!("http://{}/", self.addr),
+        }
+    }
+
+    /// The access token requests need (`None` on loopback, where none is asked).
+    pub fn access_token(&self) -> Option<&str> {
+        self.token.as_deref()
     }
 
     /// A handle for other threads.

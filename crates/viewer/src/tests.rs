@@ -10,7 +10,8 @@ use std::sync::Mutex;
 use std::time::{Duration, Instant};
 
 fn start() -> Viewer {
-    Viewer::start(ViewerOptions { bind: IpAddr::V4(Ipv4Addr::LOCALHOST), port: 0 }).expect("start viewer")
+    Viewer::start(ViewerOptions { bind: IpAddr::V4(Ipv4Addr::LOCALHOST), port: 0, ..Default::default() })
+        .expect("start viewer")
 }
 
 /// Sends raw bytes, returns (status, body).
@@ -277,7 +278,7 @@ fn survives_abrupt_disconnects() {
         std::thread::sleep(Duration::from_millis(5));
     }
     let deadline = Instant::now() + Duration::from_secs(10);
-    while v.handle.shared.connections.load(std::sync::atomic::Ordering::SeqCst) > 0 {
+    while v.handle.shared.slots().count(None) > 0 {
         assert!(Instant::now() < deadline, "connection threads did not end");
         std::thread::sleep(Duration::from_millis(20));
     }
@@ -290,6 +291,8 @@ fn survives_abrupt_disconnects() {
 struct MockController {
     started: Mutex<Vec<RunSettings>>,
     stopped: Mutex<usize>,
+    /// Calls of `max_frames_for` (each would open the input: ffprobe).
+    probes: std::sync::atomic::AtomicUsize,
 }
 
 impl RunController for MockController {
@@ -306,6 +309,7 @@ impl RunController for MockController {
         }
     }
     fn max_frames_for(&self, input: &std::path::Path, skip: usize) -> Result<usize, String> {
+        self.probes.fetch_add(1, std::sync::atomic::Ordering::SeqCst);
         if input.to_string_lossy().contains("missing") {
             return Err(format!("{}: not found", input.display()));
         }
@@ -323,14 +327,18 @@ fn run_control() {
     let (code, j) = post(&v, "/api/run", settings);
     assert_eq!(code, 503);
     assert!(j["error"].as_str().unwrap_or("").contains("no pipeline"));
-    assert_eq!(get(&v, "/api/max_frames?input=x&skip=1").0, 503);
+    assert_eq!(post(&v, "/api/max_frames", r#"{"input":"x","skip":1}"#).0, 503);
 
     let ctl = Arc::new(MockController::default());
     v.set_controller(ctl.clone());
-    let (code, j) = get_json(&v, "/api/max_frames?input=%2Fdata%2Fseq&skip=3");
+    let (code, j) = post(&v, "/api/max_frames", r#"{"input":"/data/seq","skip":3}"#);
     assert_eq!((code, j["max_frames"].as_u64()), (200, Some(34)));
-    assert_eq!(get(&v, "/api/max_frames?input=%2Fdata%2Fseq&skip=-1").0, 400);
-    assert_eq!(get(&v, "/api/max_frames?input=/missing&skip=1").0, 400);
+    // The page sends the field's text as it is.
+    assert_eq!(post(&v, "/api/max_frames", r#"{"input":"/data/seq","skip":"3"}"#).1["max_frames"], 34);
+    assert_eq!(post(&v, "/api/max_frames", r#"{"input":"/data/seq","skip":-1}"#).0, 400);
+    assert_eq!(post(&v, "/api/max_frames", r#"{"input":"/data/seq","skip":"x"}"#).0, 400);
+    assert_eq!(post(&v, "/api/max_frames", r#"{"skip":1}"#).0, 400);
+    assert_eq!(post(&v, "/api/max_frames", r#"{"input":"/missing","skip":1}"#).0, 400);
 
     for (bad, why) in [
         (settings.replace("\"skip\":2", "\"skip\":-1"), "skip"),
@@ -441,4 +449,253 @@ fn handles_are_thread_safe() {
     fn send_sync<T: Send + Sync>() {}
     send_sync::<ViewerHandle>();
     send_sync::<Viewer>();
+}
+
+/// Sends raw bytes on a new connection, returns (status, head, body).
+fn raw_to(addr: std::net::SocketAddr, request: &[u8]) -> (u16, String, Vec<u8>) {
+    let mut s = TcpStream::connect(addr).expect("connect");
+    s.set_read_timeout(Some(Duration::from_secs(10))).expect("timeout");
+    s.write_all(request).expect("write");
+    let mut out = Vec::new();
+    s.read_to_end(&mut out).expect("read");
+    let split = out.windows(4).position(|w| w == b"\r\n\r\n").expect("response head");
+    let head = String::from_utf8_lossy(&out[..split]).into_owned();
+    let status = head.split_whitespace().nth(1).and_then(|c| c.parse().ok()).expect("status code");
+    (status, head, out[split + 4..].to_vec())
+}
+
+/// Waits (up to `limit`) until no connection is registered.
+fn wait_idle(v: &Viewer, limit: Duration) -> Duration {
+    let t = Instant::now();
+    while v.handle.shared.slots().count(None) > 0 {
+        assert!(t.elapsed() < limit, "{} connections still held after {limit:?}", v.handle.shared.slots().count(None));
+        std::thread::sleep(Duration::from_millis(10));
+    }
+    t.elapsed()
+}
+
+#[test]
+fn slow_clients_do_not_lock_the_server() {
+    let v = start();
+    // 70 clients that send a request head one byte at a time, slower than
+    // any read timeout notices: more than every serving slot.
+    let mut slow: Vec<TcpStream> = (0..70)
+        .map(|_| {
+            let mut s = TcpStream::connect(v.local_addr()).expect("connect");
+            let _ = s.write_all(b"GET / HTTP/1.1\r\nX-Slow: ");
+            s
+        })
+        .collect();
+    let stop = Arc::new(std::sync::atomic::AtomicBool::new(false));
+    let drip = std::thread::spawn({
+        let stop = Arc::clone(&stop);
+        let mut conns: Vec<TcpStream> = slow.iter().filter_map(|s| s.try_clone().ok()).collect();
+        move || {
+            while !stop.load(std::sync::atomic::Ordering::SeqCst) {
+                for s in &mut conns {
+                    // Clients closed to make room fail here: that is expected.
+                    let _ = s.write_all(b"a");
+                }
+                std::thread::sleep(Duration::from_millis(300));
+            }
+        }
+    });
+    std::thread::sleep(Duration::from_millis(100));
+    for _ in 0..3 {
+        let t = Instant::now();
+        let (code, _) = get(&v, "/api/state");
+        assert_eq!(code, 200, "a normal client is served while 70 slow ones are connected");
+        assert!(t.elapsed() < Duration::from_secs(2), "served in {:?}", t.elapsed());
+    }
+    let mut ev = Events::open(&v);
+    assert_eq!(ev.next()["full"], true);
+    stop.store(true, std::sync::atomic::Ordering::SeqCst);
+    let _ = drip.join();
+    slow.clear();
+    drop(ev);
+    wait_idle(&v, Duration::from_secs(3));
+}
+
+#[test]
+fn a_request_must_arrive_within_the_deadline() {
+    let deadline = Duration::from_millis(600);
+    let v = Viewer::start(ViewerOptions { port: 0, request_deadline: deadline, ..Default::default() }).expect("start");
+    let mut s = TcpStream::connect(v.local_addr()).expect("connect");
+    s.set_read_timeout(Some(Duration::from_secs(10))).expect("timeout");
+    s.write_all(b"GET / HTTP/1.1\r\nX-Slow: ").expect("write");
+    // One byte every 100 ms: each read is quick, the request never ends.
+    let mut w = s.try_clone().expect("clone");
+    let drip = std::thread::spawn(move || {
+        for _ in 0..50 {
+            if w.write_all(b"a").is_err() {
+                return;
+            }
+            std::thread::sleep(Duration::from_millis(100));
+        }
+    });
+    let t = Instant::now();
+    let mut out = Vec::new();
+    let _ = s.read_to_end(&mut out);
+    let took = t.elapsed();
+    assert!(String::from_utf8_lossy(&out).starts_with("HTTP/1.1 408"), "{}", String::from_utf8_lossy(&out));
+    assert!(took >= deadline - Duration::from_millis(100) && took < Duration::from_secs(3), "closed after {took:?}");
+    drop(s);
+    let _ = drip.join();
+    wait_idle(&v, Duration::from_secs(2));
+    assert_eq!(get(&v, "/").0, 200);
+}
+
+#[test]
+fn event_streams_release_their_slots_when_clients_leave() {
+    let v = start();
+    for _ in 0..200 {
+        let mut s = TcpStream::connect(v.local_addr()).expect("connect");
+        s.set_read_timeout(Some(Duration::from_secs(5))).expect("timeout");
+        s.write_all(b"GET /events HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n").expect("write");
+        let mut line = String::new();
+        BufReader::new(&s).read_line(&mut line).expect("status line");
+        assert!(line.starts_with("HTTP/1.1 200"), "{line}");
+    }
+    // Streams open at once are capped; each notices its client left within
+    // a poll interval, not at the next keepalive.
+    assert!(v.handle.shared.slots().count(Some(http::Phase::Events)) <= http::MAX_EVENT_STREAMS);
+    let took = wait_idle(&v, Duration::from_secs(2));
+    eprintln!("200 event streams released {took:?} after their clients left");
+    assert_eq!(get(&v, "/").0, 200);
+    let mut ev = Events::open(&v);
+    assert_eq!(ev.next()["full"], true);
+}
+
+#[test]
+fn off_loopback_requests_need_the_token() {
+    let v =
+        match Viewer::start(ViewerOptions { bind: IpAddr::V4(Ipv4Addr::UNSPECIFIED), port: 0, ..Default::default() }) {
+            Ok(v) => v,
+            Err(e) => {
+                // Machines without IPv4 sockets: the checks are tested below.
+                eprintln!("SKIPPED: cannot bind 0.0.0.0: {e}");
+                return;
+            }
+        };
+    let token = v.access_token().expect("a token off loopback").to_string();
+    assert_eq!(token.len(), 32);
+    assert!(v.url().ends_with(&format!("/?token={token}")), "{}", v.url());
+    let port = v.local_addr().port();
+    let addr = std::net::SocketAddr::from((Ipv4Addr::LOCALHOST, port));
+    let req = |target: &str, extra: &str| {
+        raw_to(addr, format!("GET {target} HTTP/1.1\r\nHost: 192.0.2.7:{port}\r\n{extra}\r\n").as_bytes())
+    };
+    assert_eq!(req("/api/state", "").0, 401, "no token");
+    assert_eq!(req("/", "").0, 401, "not even the page");
+    assert_eq!(req("/api/state?token=0123", "").0, 401, "wrong token");
+    assert_eq!(req(&format!("/api/state?token={}", token.replace(&token[..1], "x")), "").0, 401);
+    assert_eq!(req("/api/state", &format!("Cookie: colslam_token_{port}=nope\r\n")).0, 401);
+    assert_eq!(req(&format!("/api/state?token={token}"), "").0, 200);
+    // The index opened with the token sets it as a cookie for the page's requests.
+    let (code, head, _) = req(&format!("/?token={token}"), "");
+    assert_eq!(code, 200);
+    let cookie = head.lines().find(|l| l.to_ascii_lowercase().starts_with("set-cookie:")).expect("cookie set");
+    assert!(cookie.contains(&format!("colslam_token_{port}={token}")), "{cookie}");
+    assert!(cookie.contains("HttpOnly") && cookie.contains("SameSite=Strict"), "{cookie}");
+    assert_eq!(req("/api/state", &format!("Cookie: a=b; colslam_token_{port}={token}\r\n")).0, 200);
+    assert_eq!(req("/api/state", &format!("Authorization: Bearer {token}\r\n")).0, 200);
+    // A page of another site (DNS rebinding makes Host and Origin agree)
+    // is refused even with the token; the bound address's own origin is not.
+    let post = |origin: &str| {
+        let body = "{}";
+        raw_to(
+            addr,
+            format!(
+                "POST /api/load?token={token} HTTP/1.1\r\nHost: evil.example:{port}\r\nOrigin: {origin}\r\nContent-Type: application/json\r\nContent-Length: {}\r\n\r\n{body}",
+                body.len()
+            )
+            .as_bytes(),
+        )
+        .0
+    };
+    assert_eq!(post(&format!("http://evil.example:{port}")), 403);
+    assert_eq!(post("http://192.0.2.7:1"), 403, "wrong port");
+    assert_eq!(post(&format!("http://192.0.2.7:{port}")), 400, "passes the checks (the body lacks a path)");
+}
+
+#[test]
+fn origin_must_name_the_bound_address() {
+    let ip = |s: &str| s.parse::<IpAddr>().expect("ip");
+    let lan = ip("192.168.1.5");
+    assert!(http::origin_allowed("http://192.168.1.5:8765", lan, 8765));
+    assert!(!http::origin_allowed("http://192.168.1.6:8765", lan, 8765));
+    assert!(!http::origin_allowed("http://192.168.1.5:8766", lan, 8765));
+    assert!(!http::origin_allowed("https://192.168.1.5:8765", lan, 8765));
+    assert!(!http::origin_allowed("http://attacker.example:8765", lan, 8765));
+    assert!(!http::origin_allowed("http://192.168.1.5", lan, 8765));
+    assert!(http::origin_allowed("http://192.168.1.5", lan, 80));
+    assert!(!http::origin_allowed("null", lan, 8765));
+    let any = ip("0.0.0.0");
+    assert!(http::origin_allowed("http://10.0.0.2:8765", any, 8765));
+    assert!(http::origin_allowed("http://[fe80::1]:8765", ip("::"), 8765));
+    assert!(http::origin_allowed("http://localhost:8765", any, 8765));
+    assert!(!http::origin_allowed("http://rebind.attacker.example:8765", any, 8765));
+    assert!(!http::origin_allowed("http://[fe80::1]:8765", lan, 8765));
+}
+
+#[test]
+fn max_frames_is_not_a_get() {
+    let v = start();
+    let ctl = Arc::new(MockController::default());
+    v.set_controller(ctl.clone());
+    // An <img> on another site sends GETs: they must not open files.
+    assert_eq!(get(&v, "/api/max_frames?input=%2Fetc%2Fpasswd&skip=1").0, 405);
+    let port = v.local_addr().port();
+    let body = r#"{"input":"/etc/passwd","skip":1}"#;
+    let cross = format!(
+        "POST /api/max_frames HTTP/1.1\r\nHost: 127.0.0.1:{port}\r\nOrigin: http://evil.example\r\nContent-Type: application/json\r\nContent-Length: {}\r\n\r\n{body}",
+        body.len()
+    );
+    assert_eq!(raw(&v, cross.as_bytes()).0, 403);
+    let form = format!(
+        "POST /api/max_frames HTTP/1.1\r\nHost: 127.0.0.1:{port}\r\nContent-Type: text/plain\r\nContent-Length: {}\r\n\r\n{body}",
+        body.len()
+    );
+    assert_eq!(raw(&v, form.as_bytes()).0, 415);
+    assert_eq!(ctl.probes.load(std::sync::atomic::Ordering::SeqCst), 0, "the controller was never asked");
+    assert_eq!(post(&v, "/api/max_frames", body).0, 200);
+    assert_eq!(ctl.probes.load(std::sync::atomic::Ordering::SeqCst), 1);
+}
+
+#[test]
+fn request_head_parser_is_a_pure_function() {
+    let r =
+        parse_request_head(b"POST /a%20b?x=1&y=%2F HTTP/1.1\r\nHost: h\r\nContent-Length: 12\r\n\r\n").expect("parses");
+    assert_eq!((r.method.as_str(), r.path.as_str(), r.content_length), ("POST", "/a b", 12));
+    assert_eq!(r.query, vec![("x".to_string(), "1".to_string()), ("y".to_string(), "/".to_string())]);
+    assert_eq!(r.headers[0], ("host".to_string(), "h".to_string()));
+    let status = |b: &[u8]| parse_request_head(b).map(|_| 0).unwrap_or_else(|e| e.status);
+    assert_eq!(status(b"GET / HTTP/1.0\n\n"), 0);
+    assert_eq!(status(b""), 400);
+    assert_eq!(status(b"GET /\r\n\r\n"), 400);
+    assert_eq!(status(b"GET / SPDY/9\r\n\r\n"), 505);
+    assert_eq!(status(b"GET / HTTP/1.1\r\n\xff\r\n\r\n"), 400);
+    assert_eq!(status(b"GET / HTTP/1.1\r\nContent-Length: -1\r\n\r\n"), 400);
+    assert_eq!(status(b"GET / HTTP/1.1\r\nContent-Length: 1\r\nContent-Length: 2\r\n\r\n"), 400);
+    assert_eq!(status(b"GET / HTTP/1.1\r\nContent-Length: 99999999\r\n\r\n"), 413);
+    assert_eq!(status(format!("GET / HTTP/1.1\r\nX: {}\r\n\r\n", "a".repeat(20_000)).as_bytes()), 431);
+    // Arbitrary bytes never panic.
+    let mut rng = colslam_geometry::SplitMix64::new(17);
+    for len in 0..300 {
+        let bytes: Vec<u8> = (0..len).map(|_| rng.below(256) as u8).collect();
+        let _ = parse_request_head(&bytes);
+    }
+}
+
+#[test]
+fn run_settings_parse_as_a_pure_function() {
+    let s = RunSettings::from_json(br#"{"input":"/a","output":"/b","skip":2}"#).expect("valid");
+    assert_eq!((s.skip, s.init_frames), (2, RunSettings::default().init_frames));
+    assert!(matches!(RunSettings::from_json(b"{"), Err(SettingsError::Json(_))));
+    assert!(matches!(RunSettings::from_json(br#"{"input":"/a","output":"/b","x":1}"#), Err(SettingsError::Json(_))));
+    assert!(matches!(
+        RunSettings::from_json(br#"{"input":"/a","output":"/b","skip":0}"#),
+        Err(SettingsError::Invalid(_))
+    ));
+    assert!(matches!(RunSettings::from_json(br#"{"input":"","output":"/b"}"#), Err(SettingsError::Invalid(_))));
 }

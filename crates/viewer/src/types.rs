@@ -270,7 +270,26 @@ impl Default for RunSettings {
     }
 }
 
+/// Why a `POST /api/run` body is not a run: the message the page shows.
+#[derive(Debug, thiserror::Error)]
+pub enum SettingsError {
+    /// Not JSON, or JSON that is not [`RunSettings`] (unknown fields, wrong types).
+    #[error("invalid settings: {0}")]
+    Json(#[from] serde_json::Error),
+    /// Well-formed settings outside the pipeline's ranges.
+    #[error("invalid settings: {0}")]
+    Invalid(String),
+}
+
 impl RunSettings {
+    /// Parses and validates the page's JSON body: what `POST /api/run`
+    /// does before it starts anything (a pure function, for tests and fuzzing).
+    pub fn from_json(body: &[u8]) -> Result<RunSettings, SettingsError> {
+        let settings: RunSettings = serde_json::from_slice(body)?;
+        settings.validate().map_err(SettingsError::Invalid)?;
+        Ok(settings)
+    }
+
     /// Checks the settings with the pipeline's own validation (the page
     /// checks the same before sending): input and output paths given, and
     /// every option in its range.

@@ -2,12 +2,15 @@
 //! port, and `e2e/test.mjs` drives headless Chromium through playwright-core
 //! against it (load a model, track selector, clip range, picking, export and
 //! reload, invalid settings, a simulated live run, a 100,000-point map, a
-//! server restart). Screenshots go to `docs/screenshots/` (or
-//! `COLSLAM_SCREENSHOT_DIR`); they are the same from run to run.
+//! server restart). Screenshots go to a temporary folder, so tests never
+//! touch the tracked files; the documentation's pictures are made on
+//! request with `COLSLAM_SCREENSHOT_DIR=docs/screenshots` (a relative path
+//! is taken from the workspace root; they are the same from run to run).
 //!
 //! Needs `node`, Chromium (`/usr/bin/chromium` or `COLSLAM_CHROMIUM`) and
 //! `npm ci` in `crates/viewer/e2e` (scripts/setup-browser.sh does all).
-//! Skips with a message when any is missing, except in CI where it fails.
+//! Skips with a message when any is missing, except in CI (`CI=true`) where
+//! it fails: a CI run that could not drive a browser must not look green.
 
 use colslam_viewer::{
     FrameUpdate, KeyframeUpdate, MapDelta, RunController, RunSettings, RunState, Summary, Viewer, ViewerCamera,
@@ -23,11 +26,46 @@ use std::time::Duration;
 /// The whole browser run must end within this (a hung browser fails the test).
 const BROWSER_TIMEOUT: Duration = Duration::from_secs(240);
 
-fn skip_or_fail(what: &str) {
-    if colslam_testutil::in_ci() {
-        panic!("CI=true but {what} (run scripts/setup-browser.sh)");
+/// What to do when a prerequisite is missing: `Err` (the test fails) in CI,
+/// `Ok` with the skip notice elsewhere.
+fn missing_prerequisite(what: &str, ci: bool) -> Result<String, String> {
+    if ci {
+        Err(format!("CI=true but {what} (run scripts/setup-browser.sh)"))
+    } else {
+        Ok(format!("SKIPPED: {what} (run scripts/setup-browser.sh)"))
     }
-    eprintln!("SKIPPED: {what} (run scripts/setup-browser.sh)");
+}
+
+fn skip_or_fail(what: &str) {
+    match missing_prerequisite(what, colslam_testutil::in_ci()) {
+        Ok(notice) => eprintln!("{notice}"),
+        Err(failure) => panic!("{failure}"),
+    }
+}
+
+#[test]
+fn a_missing_browser_fails_in_ci() {
+    assert!(missing_prerequisite("chromium not found", true).is_err());
+    let notice = missing_prerequisite("chromium not found", false).expect("skipped outside CI");
+    assert!(notice.starts_with("SKIPPED") && notice.contains("chromium not found"), "{notice}");
+}
+
+/// Where the screenshots go: `COLSLAM_SCREENSHOT_DIR` (relative to the
+/// workspace root) when set, else `scratch`.
+fn screenshot_dir(requested: Option<std::ffi::OsString>, root: &Path, scratch: &Path) -> PathBuf {
+    match requested {
+        Some(d) if !d.is_empty() => root.join(d),
+        _ => scratch.to_path_buf(),
+    }
+}
+
+#[test]
+fn screenshots_stay_out_of_the_tree_unless_asked() {
+    let (root, scratch) = (Path::new("/ws"), Path::new("/tmp/t"));
+    assert_eq!(screenshot_dir(None, root, scratch), scratch);
+    assert_eq!(screenshot_dir(Some("".into()), root, scratch), scratch);
+    assert_eq!(screenshot_dir(Some("docs/screenshots".into()), root, scratch), root.join("docs/screenshots"));
+    assert_eq!(screenshot_dir(Some("/abs/dir".into()), root, scratch), Path::new("/abs/dir"));
 }
 
 fn chromium() -> Option<PathBuf> {
@@ -209,8 +247,7 @@ fn browser_end_to_end() {
         track_point.track.iter().filter(|t| (clip_start..=clip_end).contains(&(t.image_id.0 - 1))).count();
     assert!(clip_track_lines < track_lines, "the clip must cut the chosen track");
 
-    let shots =
-        std::env::var_os("COLSLAM_SCREENSHOT_DIR").map(PathBuf::from).unwrap_or_else(|| root.join("docs/screenshots"));
+    let shots = screenshot_dir(std::env::var_os("COLSLAM_SCREENSHOT_DIR"), &root, &work.path().join("screenshots"));
     std::fs::create_dir_all(&shots).expect("screenshot dir");
     let mut viewer = Viewer::start(ViewerOptions { port: 0, ..Default::default() }).expect("viewer");
     let controller = Arc::new(MockController::default());

@@ -600,9 +600,8 @@ async function fetchMaxFrames() {
   const input = $('input-path').value.trim(), skip = $('skip').value.trim();
   if (!input || !model.hasController) return;
   try {
-    const r = await fetch('/api/max_frames?input=' + encodeURIComponent(input) + '&skip=' + encodeURIComponent(skip));
-    const j = await r.json();
-    if (!r.ok) throw new Error(j.error || 'HTTP ' + r.status);
+    // A POST: asking opens the input on the server (GET requests have no effects).
+    const j = await post('/api/max_frames', { input, skip });
     const rg = $('max-range');
     rg.disabled = false; rg.max = Math.max(1, j.max_frames);
     rg.value = rg.max; $('max-frames').value = rg.max;
@@ -610,6 +609,10 @@ async function fetchMaxFrames() {
     $('max-bound').setAttribute('data-bound', j.max_frames);
   } catch (e) { $('max-bound').textContent = 'bound unknown: ' + e.message; $('max-bound').setAttribute('data-bound', '-1'); }
 }
+
+// Opened with the access token (a viewer bound off loopback): the server
+// has set it as a cookie, so the URL shown need not keep it.
+if (new URLSearchParams(location.search).has('token')) history.replaceState(null, '', location.pathname);
 
 updateRunButtons();
 rebuild();

@@ -1,7 +1,7 @@
 //! `colslam export`: convert a COLMAP model between binary and text, or
 //! export its point cloud (PLY) or its registered poses (TUM trajectory).
 
-use anyhow::{Context, Result};
+use anyhow::Result;
 use std::path::PathBuf;
 
 /// Output formats.
@@ -31,21 +31,24 @@ pub struct ExportArgs {
     pub format: ExportFormat,
 }
 
-/// Runs `export`.
+/// Runs `export`. A model folder is written as a whole (the folder holds
+/// the previous model or the new one, never a mix), and its location is
+/// checked and locked before the input model is read.
 pub fn run(args: &ExportArgs) -> Result<()> {
-    let rec = colslam_scene::read_model(&args.model)?;
+    let read = || colslam_scene::read_model(&args.model);
     match args.format {
         ExportFormat::Bin | ExportFormat::Txt => {
-            std::fs::create_dir_all(&args.output).with_context(|| format!("creating {}", args.output.display()))?;
             let format = match args.format {
                 ExportFormat::Bin => colslam_scene::ModelFormat::Binary,
                 _ => colslam_scene::ModelFormat::Text,
             };
-            colslam_scene::write_model(&rec, &args.output, format)?;
+            let out = colslam_scene::begin_model_output(&args.output)?;
+            colslam_scene::write_model_files(&read()?, out.path(), format)?;
+            out.commit()?;
         }
-        ExportFormat::Ply => colslam_scene::write_ply(&rec, &args.output)?,
+        ExportFormat::Ply => colslam_scene::write_ply(&read()?, &args.output)?,
         ExportFormat::Tum => {
-            let traj = crate::cmd_info::trajectory_of(&rec);
+            let traj = crate::cmd_info::trajectory_of(&read()?);
             traj.write_tum(&args.output)?;
         }
     }

@@ -92,6 +92,22 @@ fn run_and_export_a_model() {
     let txt = dir.path().join("txt");
     ok(&["export", out_s, "-o", txt.to_str().expect("utf-8"), "-f", "txt"]);
     assert!(txt.join("images.txt").exists());
+    // Converted in place, nothing of the text model is left for readers to
+    // pick up (regression: the old files stayed beside the new ones).
+    ok(&["export", txt.to_str().expect("utf-8"), "-o", txt.to_str().expect("utf-8"), "-f", "bin"]);
+    let mut left: Vec<String> =
+        std::fs::read_dir(&txt).expect("ls").flatten().map(|e| e.file_name().to_string_lossy().into_owned()).collect();
+    left.sort();
+    assert_eq!(left, ["cameras.bin", "frames.bin", "images.bin", "points3D.bin", "rigs.bin"]);
+    // A folder that is not a model is not replaced.
+    let mine = dir.path().join("mine");
+    std::fs::create_dir(&mine).expect("mkdir");
+    std::fs::write(mine.join("notes.md"), "keep").expect("write");
+    let refused = colslam(&["export", out_s, "-o", mine.to_str().expect("utf-8"), "-f", "txt"]);
+    assert!(!refused.status.success());
+    let err = String::from_utf8_lossy(&refused.stderr);
+    assert!(err.contains("notes.md") && err.contains("refusing"), "{err}");
+    assert!(mine.join("notes.md").exists());
     let tum = dir.path().join("model.tum");
     ok(&["export", txt.to_str().expect("utf-8"), "-o", tum.to_str().expect("utf-8"), "-f", "tum"]);
     let n = std::fs::read_to_string(&tum).expect("tum").lines().filter(|l| !l.starts_with('#')).count();

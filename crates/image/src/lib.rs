@@ -3,6 +3,9 @@
 
 use std::path::{Path, PathBuf};
 
+mod output;
+pub use output::{OutputDir, OutputError, fault, write_atomic};
+
 /// Errors from reading or writing images.
 #[derive(Debug, thiserror::Error)]
 pub enum ImageError {
@@ -208,29 +211,6 @@ fn from_colorspace(w: usize, h: usize, comps: usize, alpha: bool, px: Vec<u8>) -
         (4, true) => Image::from_vec(w, h, 3, px.chunks_exact(4).flat_map(|p| [p[0], p[1], p[2]]).collect()),
         _ => Err(ImageError::BadBuffer { len: px.len(), width: w, height: h, channels: comps }),
     }
-}
-
-/// Writes `bytes` to `path` atomically: a temporary file in the same folder is
-/// written and synced, then renamed over `path`, so a reader never sees a
-/// partial file and an interrupted run leaves the old file intact.
-pub fn write_atomic(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
-    use std::io::Write;
-    let dir = match path.parent() {
-        Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
-        _ => PathBuf::from("."),
-    };
-    let name = path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
-    let tmp = dir.join(format!(".{name}.tmp-{}", std::process::id()));
-    let result = (|| {
-        let mut f = std::fs::File::create(&tmp)?;
-        f.write_all(bytes)?;
-        f.sync_all()?;
-        std::fs::rename(&tmp, path)
-    })();
-    if result.is_err() {
-        let _ = std::fs::remove_file(&tmp);
-    }
-    result
 }
 
 #[cfg(test)]

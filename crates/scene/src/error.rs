@@ -14,6 +14,10 @@ pub enum SceneError {
         /// The cause.
         source: std::io::Error,
     },
+    /// An output folder cannot be written (its location, its lock, its
+    /// swap into place).
+    #[error(transparent)]
+    Output(#[from] colslam_image::OutputError),
     /// A model folder lacks the files of either format.
     #[error("{dir}: no COLMAP model found (need cameras, images and points3D as .bin or .txt); missing {missing}")]
     MissingFiles {

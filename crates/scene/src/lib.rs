@@ -21,7 +21,9 @@ pub mod types;
 
 pub use error::SceneError;
 pub use ids::{CameraId, ImageId, Point3DId};
-pub use io::{ModelFormat, read_model, read_model_format, write_model};
+pub use io::{
+    MODEL_FILE_NAMES, ModelFormat, begin_model_output, read_model, read_model_format, write_model, write_model_files,
+};
 pub use ply::{PlyFormat, write_ply, write_ply_with};
 pub use reconstruction::{
     DeregisterReport, FilterReport, NormalizeOptions, ObservationRemoval, Reconstruction, triangulation_angle,

@@ -45,6 +45,10 @@ pub enum SlamError {
     /// An error of the scene layer.
     #[error(transparent)]
     Scene(#[from] colslam_scene::SceneError),
+    /// The output folder cannot be written (its location, its lock, its
+    /// swap into place).
+    #[error(transparent)]
+    Output(#[from] colslam_image::OutputError),
     /// Writing an output failed.
     #[error("{path}: {source}")]
     Io {

@@ -42,7 +42,7 @@ pub use events::{EventPoint, EventSink, SlamEvent};
 pub use frame::{FrameData, FrameId, FramePose, FrameRecord};
 pub use mapper::rolling_shutter;
 pub use options::{FeatureKind, MatcherKind, SlamOptions};
-pub use output::{OutputFormat, RunReport, write_outputs, write_report};
+pub use output::{OutputFormat, RUN_OUTPUT_NAMES, RunReport, begin_run_output, write_outputs, write_report};
 pub use pipeline::{MapResult, RunStats, Slam, SlamResult};
 pub use run::{CameraOptions, InputOptions, RunConfig, RunHooks, RunOptions, RunOutput, RunStart};
 pub use timing::{Stage, StageTimings};

@@ -1,6 +1,14 @@
-//! Writing a run's outputs (all atomically): the COLMAP model of the largest
-//! map (binary or text), the other maps under `maps/<k>/`, `trajectory.tum`
-//! (every localised frame), `keyframes.tum`, `points.ply` and `report.json`.
+//! Writing a run's outputs: the COLMAP model of the largest map (binary or
+//! text), the other maps under `maps/<k>/`, `trajectory.tum` (every localised
+//! frame), `keyframes.tum`, `points.ply`, `report.json` and, with ground
+//! truth, `trajectory.eval.png`.
+//!
+//! The output folder is written as a whole ([`begin_run_output`], see
+//! [`colslam_image::OutputDir`]): everything goes into a staging folder
+//! beside it that replaces it when complete, so the folder always holds one
+//! whole run (the previous or the new one), never files of two runs. A run
+//! owns its output folder: one holding anything but [`RUN_OUTPUT_NAMES`] is
+//! refused rather than replaced.
 
 use crate::error::SlamError;
 use crate::frame::{FrameId, FramePose};
@@ -8,7 +16,8 @@ use crate::options::SlamOptions;
 use crate::pipeline::{MapResult, SlamResult};
 use crate::timing::StageTimings;
 use colslam_eval::trajectory::Trajectory;
-use colslam_scene::{ModelFormat, write_model, write_ply};
+use colslam_image::OutputDir;
+use colslam_scene::{MODEL_FILE_NAMES, ModelFormat, write_model_files, write_ply};
 use serde::Serialize;
 use std::path::Path;
 
@@ -135,13 +144,41 @@ fn trajectory(poses: &[FramePose], keyframes_only: bool) -> Trajectory {
     )
 }
 
+/// The files and folders of a run's output folder besides the model files
+/// ([`MODEL_FILE_NAMES`]).
+const RUN_FILE_NAMES: [&str; 6] =
+    ["maps", "trajectory.tum", "keyframes.tum", "points.ply", "report.json", "trajectory.eval.png"];
+
+/// The names a run's output folder holds: what [`begin_run_output`] accepts
+/// to replace.
+pub const RUN_OUTPUT_NAMES: [&str; MODEL_FILE_NAMES.len() + RUN_FILE_NAMES.len()] = {
+    let mut all = [""; MODEL_FILE_NAMES.len() + RUN_FILE_NAMES.len()];
+    let mut i = 0;
+    while i < all.len() {
+        all[i] =
+            if i < MODEL_FILE_NAMES.len() { MODEL_FILE_NAMES[i] } else { RUN_FILE_NAMES[i - MODEL_FILE_NAMES.len()] };
+        i += 1;
+    }
+    all
+};
+
+/// Starts writing the run output folder `out` as a whole: checks that it
+/// can be written (a folder, or missing, not under a file, holding nothing
+/// but a run's outputs), takes its lock (a second run or export into it is
+/// refused while this one lives) and creates the staging folder to write
+/// into. [`OutputDir::commit`] puts the outputs in place.
+pub fn begin_run_output(out: &Path) -> Result<OutputDir, SlamError> {
+    Ok(OutputDir::begin(out, &RUN_OUTPUT_NAMES)?)
+}
+
 fn create_dir(dir: &Path) -> Result<(), SlamError> {
     std::fs::create_dir_all(dir).map_err(|source| SlamError::Io { path: dir.to_path_buf(), source })
 }
 
-/// Writes every output of `result` but the report into `out` and returns
-/// the report (without wall time, stop and evaluation, which the driver
-/// fills in before it writes it with [`write_report`]).
+/// Writes every output of `result` but the report into the folder `out`
+/// (the staging folder of [`begin_run_output`]) and returns the report
+/// (without wall time, stop and evaluation, which the driver fills in
+/// before it writes it with [`write_report`]).
 pub fn write_outputs(
     result: &SlamResult,
     out: &Path,
@@ -157,7 +194,7 @@ pub fn write_outputs(
     for (k, m) in result.maps.iter().enumerate() {
         let dir = if k == 0 { out.to_path_buf() } else { out.join("maps").join(k.to_string()) };
         create_dir(&dir)?;
-        write_model(m.map.reconstruction(), &dir, fmt)?;
+        write_model_files(m.map.reconstruction(), &dir, fmt)?;
         write_ply(m.map.reconstruction(), &dir.join("points.ply"))?;
         trajectory(&m.poses, false).write_tum(&dir.join("trajectory.tum"))?;
         trajectory(&m.poses, true).write_tum(&dir.join("keyframes.tum"))?;

@@ -1,18 +1,21 @@
 //! The driver: a source end to end, as `colslam run`, the viewer and the
-//! Python binding run it. It validates every option before anything is
-//! read, opens the source, resolves the camera, reads and extracts frames on
-//! a thread of their own ahead of the mapper, feeds the pipeline, honours a
-//! stop request, writes the outputs and then the report (with the
-//! evaluation when ground truth is given) in one trip.
+//! Python binding run it. It validates every option and takes the output
+//! folder (checks it can be written, locks it and creates the staging folder
+//! the outputs go into) before anything is read, opens the source, resolves
+//! the camera, reads and extracts frames on a thread of their own ahead of
+//! the mapper, feeds the pipeline, honours a stop request, writes the
+//! outputs and then the report (with the evaluation when ground truth is
+//! given) and swaps them into the output folder in one trip.
 
 use crate::error::SlamError;
 use crate::events::EventSink;
 use crate::frame::FrameData;
 use crate::options::SlamOptions;
-use crate::output::{OutputFormat, RunReport, write_outputs, write_report};
+use crate::output::{OutputFormat, RunReport, begin_run_output, write_outputs, write_report};
 use crate::pipeline::{Slam, SlamResult};
 use crate::timing::Stage;
 use colslam_camera::{Camera, presets};
+use colslam_image::OutputDir;
 use colslam_io::{Frame, FrameSource, SourceOptions, open_source};
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
@@ -158,6 +161,14 @@ impl RunConfig {
             return Err(SlamError::Path { path: self.output.clone(), reason });
         }
         Ok(())
+    }
+
+    /// Checks that the output folder can be written now, as [`run`] does
+    /// before its first frame (see [`begin_run_output`]): takes its lock and
+    /// creates its staging folder, then releases both. For a front end that
+    /// answers a request before it starts the run on a thread of its own.
+    pub fn check_output(&self) -> Result<(), SlamError> {
+        begin_run_output(&self.output).map(drop)
     }
 }
 
@@ -308,6 +319,8 @@ enum Extracted {
 pub fn run(config: &RunConfig, events: EventSink, mut hooks: RunHooks<'_>) -> Result<RunOutput, SlamError> {
     let started = Instant::now();
     config.validate()?;
+    // A bad or busy output fails here, before any frame is read.
+    let output = begin_run_output(&config.output)?;
     let opts = &config.options;
     if opts.threads > 0 {
         // Fails only when a global pool already exists (a second run in one
@@ -323,31 +336,53 @@ pub fn run(config: &RunConfig, events: EventSink, mut hooks: RunHooks<'_>) -> Re
     if let Some(gt) = &config.gt {
         slam.set_debug_ground_truth(colslam_eval::trajectory::Trajectory::read_tum(gt)?);
     }
-    std::fs::create_dir_all(&config.output).map_err(|source| SlamError::Io { path: config.output.clone(), source })?;
     tracing::info!("{}", source.describe());
     if let Some(f) = hooks.on_start.as_mut() {
         f(&RunStart { camera: resolved.camera.clone(), frames: source.len_hint(), description: source.describe() });
     }
     let stopped_after = feed(&mut slam, source, &mut hooks)?;
     let mut result = slam.finish()?;
+    let end = RunEnd { options: &slam_opts, stopped_after, camera_guessed: resolved.guessed, started };
+    let report = publish(output, config, &end, &mut result)?;
+    Ok(RunOutput { report, result })
+}
+
+/// What the report says of a finished run besides its result.
+struct RunEnd<'a> {
+    options: &'a SlamOptions,
+    stopped_after: Option<usize>,
+    camera_guessed: bool,
+    started: Instant,
+}
+
+/// Writes the outputs of a finished run and its report into `output`'s
+/// staging folder and swaps them into the output folder.
+fn publish(
+    output: OutputDir,
+    config: &RunConfig,
+    end: &RunEnd<'_>,
+    result: &mut SlamResult,
+) -> Result<RunReport, SlamError> {
     let t = Instant::now();
-    let format = if opts.text { OutputFormat::Text } else { OutputFormat::Binary };
+    let dir = output.path();
+    let format = if config.options.text { OutputFormat::Text } else { OutputFormat::Binary };
     let input = config.input.display().to_string();
-    let mut report = write_outputs(&result, &config.output, &input, &slam_opts, format)?;
+    let mut report = write_outputs(result, dir, &input, end.options, format)?;
     if let Some(gt) = &config.gt {
-        report.eval = Some(evaluate(gt, &config.output)?);
+        report.eval = Some(evaluate(gt, dir)?);
     }
     result.timings.add(Stage::Output, t.elapsed());
-    if let Some(n) = stopped_after {
+    if let Some(n) = end.stopped_after {
         report.notes.push(format!("stopped on request after {n} frames"));
     }
-    report.stopped_after = stopped_after;
-    report.camera_guessed = resolved.guessed;
+    report.stopped_after = end.stopped_after;
+    report.camera_guessed = end.camera_guessed;
     report.timings_s = result.timings.clone();
-    report.wall_time_s = started.elapsed().as_secs_f64();
+    report.wall_time_s = end.started.elapsed().as_secs_f64();
     report.ms_per_frame = if report.frames > 0 { 1e3 * report.wall_time_s / report.frames as f64 } else { 0.0 };
-    write_report(&report, &config.output)?;
-    Ok(RunOutput { report, result })
+    write_report(&report, dir)?;
+    output.commit()?;
+    Ok(report)
 }
 
 /// ATE of `out/trajectory.tum` against `gt` (what `colslam eval` gives on
@@ -436,6 +471,168 @@ fn consume(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use colslam_image::{OutputError, fault};
+
+    /// A synthetic image sequence on disk (plain PNG folder) of `n` frames.
+    fn sequence(dir: &Path, n: usize) -> PathBuf {
+        let opts = colslam_synth::SynthOptions {
+            frames: n,
+            width: 160,
+            height: 120,
+            focal: 131.25,
+            seed: 5,
+            ..colslam_synth::SynthOptions::default()
+        };
+        let seq = colslam_synth::SyntheticSequence::new(&opts).unwrap_or_else(|e| panic!("sequence: {e}"));
+        let input = dir.join("seq");
+        std::fs::create_dir_all(&input).unwrap_or_else(|e| panic!("mkdir: {e}"));
+        for i in 0..n {
+            let img = seq.render(i).unwrap_or_else(|e| panic!("render: {e}"));
+            img.write_png(&input.join(format!("{i:06}.png"))).unwrap_or_else(|e| panic!("png: {e}"));
+        }
+        input
+    }
+
+    fn config(input: &Path, output: &Path, max_frames: usize, text: bool) -> RunConfig {
+        let mut c = RunConfig::new(input, output);
+        c.camera.focal = Some(131.25);
+        c.options.input.max_frames = Some(max_frames);
+        c.options.text = text;
+        c
+    }
+
+    /// Names in `dir`, sorted.
+    fn names(dir: &Path) -> Vec<String> {
+        let mut v: Vec<String> = std::fs::read_dir(dir)
+            .map(|r| r.flatten().map(|e| e.file_name().to_string_lossy().into_owned()).collect())
+            .unwrap_or_default();
+        v.sort();
+        v
+    }
+
+    fn poses_in(path: &Path) -> usize {
+        let text = std::fs::read_to_string(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+        text.lines().filter(|l| !l.starts_with('#') && !l.trim().is_empty()).count()
+    }
+
+    /// The output folder holds one whole run: a model that loads, and a
+    /// report and trajectories that agree with it. Returns its frame count.
+    fn assert_one_whole_run(out: &Path, context: &str) -> u64 {
+        let rec = colslam_scene::read_model(out).unwrap_or_else(|e| panic!("{context}: no model: {e}"));
+        let text = std::fs::read_to_string(out.join("report.json")).unwrap_or_else(|e| panic!("{context}: {e}"));
+        let report: serde_json::Value = serde_json::from_str(&text).unwrap_or_else(|e| panic!("{context}: {e}"));
+        let n = |k: &str| report[k].as_u64().unwrap_or_else(|| panic!("{context}: report.{k}"));
+        assert!(n("keyframes") >= 2, "{context}: a model to check");
+        assert_eq!(rec.num_registered_images() as u64, n("keyframes"), "{context}: model vs report");
+        assert_eq!(rec.num_points3d() as u64, n("points"), "{context}: model vs report");
+        assert_eq!(poses_in(&out.join("trajectory.tum")) as u64, n("localized"), "{context}: trajectory vs report");
+        assert_eq!(poses_in(&out.join("keyframes.tum")) as u64, n("keyframes"), "{context}: keyframes vs report");
+        let files = names(out);
+        let one_format = files.iter().filter(|f| f.ends_with(".bin") || f.ends_with(".txt")).count() == 5;
+        assert!(one_format, "{context}: model files of one run and format: {files:?}");
+        n("frames")
+    }
+
+    #[test]
+    fn a_run_killed_at_any_output_step_leaves_one_whole_run() {
+        let root = tempfile::tempdir().unwrap_or_else(|e| panic!("tempdir: {e}"));
+        let input = sequence(root.path(), 20);
+        let out = root.path().join("out");
+        // Two different runs (frames, format) into one folder.
+        let (a, b) = (config(&input, &out, 20, false), config(&input, &out, 14, true));
+        // A second run started while the first runs is refused at once.
+        let second_run = std::cell::RefCell::new(None);
+        let missing = root.path().join("missing");
+        let concurrent = RunHooks {
+            on_start: Some(Box::new(|_: &RunStart| {
+                let r = run(&config(&missing, &out, 5, false), EventSink::none(), RunHooks::default());
+                *second_run.borrow_mut() = Some(r.map(|_| ()));
+            })),
+            ..RunHooks::default()
+        };
+        let mut first = run(&a, EventSink::none(), concurrent).unwrap_or_else(|e| panic!("run: {e}"));
+        let refused = second_run.borrow_mut().take();
+        assert!(matches!(refused, Some(Err(SlamError::Output(OutputError::Locked { .. })))), "{refused:?}");
+        assert_eq!(assert_one_whole_run(&out, "first run"), 20);
+        let mut second = run(&b, EventSink::none(), RunHooks::default()).unwrap_or_else(|e| panic!("run: {e}"));
+        assert_eq!(assert_one_whole_run(&out, "second run"), 14);
+        assert_eq!(names(root.path()), ["out", "seq"], "nothing beside the output");
+        // The output steps of the driver (what `run` does after its last frame).
+        let opts = a.options.slam.clone();
+        let publish_run = |c: &RunConfig, r: &mut SlamResult| -> Result<RunReport, SlamError> {
+            let end = RunEnd { options: &opts, stopped_after: None, camera_guessed: false, started: Instant::now() };
+            publish(begin_run_output(&c.output)?, c, &end, r)
+        };
+        let mut runs = [(&a, &mut first.result, 20), (&b, &mut second.result, 14)];
+        let mut steps = usize::MAX;
+        for (c, r, _) in runs.iter_mut() {
+            fault::kill_at(Some(usize::MAX));
+            publish_run(c, r).unwrap_or_else(|e| panic!("publish: {e}"));
+            steps = steps.min(fault::steps());
+            fault::kill_at(None);
+        }
+        assert!(steps >= 20, "{steps} file-system steps");
+        // The folder holds the second run; each step kills a run of the
+        // other, then that run is done again in full.
+        for k in 0..steps {
+            let (previous, next) = if k % 2 == 0 { (14, 0) } else { (20, 1) };
+            let (c, r, frames) = &mut runs[next];
+            fault::kill_at(Some(k));
+            assert!(publish_run(c, r).is_err(), "step {k}: the kill stops the run");
+            fault::kill_at(None);
+            let found = assert_one_whole_run(&out, &format!("killed at step {k}"));
+            assert!(found == previous || found == *frames, "step {k}: {found} frames");
+            // The next run cleans up whatever the killed one left.
+            publish_run(c, r).unwrap_or_else(|e| panic!("step {k}: next run: {e}"));
+            assert_eq!(assert_one_whole_run(&out, &format!("after step {k}")), *frames);
+            assert_eq!(names(root.path()), ["out", "seq"], "step {k}: leftovers beside the output");
+        }
+        // A whole run killed at its first file-system step fails before it
+        // reads a frame (as on a read-only file system).
+        let frames = std::cell::Cell::new(0usize);
+        let hooks =
+            RunHooks { before_frame: Some(Box::new(|_: &Frame| frames.set(frames.get() + 1))), ..RunHooks::default() };
+        fault::kill_at(Some(0));
+        let e = run(&a, EventSink::none(), hooks);
+        fault::kill_at(None);
+        assert!(matches!(e, Err(SlamError::Output(OutputError::Io { .. }))), "{e:?}");
+        assert_eq!(frames.get(), 0, "the output is checked before the first frame");
+    }
+
+    #[test]
+    fn bad_or_busy_outputs_fail_before_the_input_is_read() {
+        let root = tempfile::tempdir().unwrap_or_else(|e| panic!("tempdir: {e}"));
+        let file = root.path().join("file");
+        std::fs::write(&file, "x").unwrap_or_else(|e| panic!("{e}"));
+        // A missing input: only the output is looked at first.
+        let missing = root.path().join("missing");
+        let err = |out: &Path| match run(&config(&missing, out, 5, false), EventSink::none(), RunHooks::default()) {
+            Err(e) => e,
+            Ok(_) => panic!("a run into {} succeeded", out.display()),
+        };
+        assert!(matches!(err(&file), SlamError::Path { .. }));
+        let e = err(&file.join("out"));
+        assert!(matches!(e, SlamError::Output(OutputError::UnderFile { .. })), "{e}");
+        assert!(e.to_string().contains("is a file"), "{e}");
+        // A folder of other files is not a run's to replace.
+        let photos = root.path().join("photos");
+        std::fs::create_dir(&photos).unwrap_or_else(|e| panic!("{e}"));
+        std::fs::write(photos.join("a.jpg"), "x").unwrap_or_else(|e| panic!("{e}"));
+        let e = err(&photos);
+        assert!(matches!(e, SlamError::Output(OutputError::Foreign { .. })), "{e}");
+        assert_eq!(names(&photos), ["a.jpg"]);
+        // A second run into a folder another run is writing is refused.
+        let out = root.path().join("out");
+        let busy = begin_run_output(&out).unwrap_or_else(|e| panic!("{e}"));
+        let e = err(&out);
+        assert!(matches!(e, SlamError::Output(OutputError::Locked { .. })), "{e}");
+        assert!(e.to_string().contains("another process"), "{e}");
+        let config = config(&missing, &out, 5, false);
+        assert!(config.check_output().is_err(), "the check sees the lock too");
+        drop(busy);
+        config.check_output().unwrap_or_else(|e| panic!("free again: {e}"));
+        assert_eq!(names(root.path()), ["file", "photos"], "the checks leave nothing behind");
+    }
 
     #[test]
     fn chained_hooks_run_in_order_and_either_flag_stops() {

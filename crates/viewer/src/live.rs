@@ -615,7 +615,9 @@ pub fn run_args_from_settings(base: &RunOptions, s: &RunSettings) -> Result<RunC
 impl RunController for ViewController {
     fn start(&self, settings: RunSettings) -> Result<(), String> {
         let args = run_args_from_settings(&self.base, &settings)?;
-        // A bad input is reported to the page at once rather than as a failed run.
+        // A bad or busy output and a bad input are reported to the page at
+        // once rather than as a failed run.
+        args.check_output().map_err(|e| error_chain(&e))?;
         let src = args.options.source();
         colslam_io::probe_source(&args.input, &src).map_err(|e| e.to_string())?;
         if !self.shared.try_begin() {
@@ -668,6 +670,40 @@ mod tests {
 
     fn base() -> RunOptions {
         RunOptions::default()
+    }
+
+    #[test]
+    fn a_run_into_an_unusable_output_is_refused_before_it_starts() {
+        // Regression: the page's run was accepted and failed only in the
+        // run (after the compute), for an output under a file or busy.
+        let dir = tempfile::tempdir().expect("tempdir");
+        let input = dir.path().join("seq");
+        std::fs::create_dir(&input).expect("mkdir");
+        for i in 0..2 {
+            Image::new(32, 24, 1).write_png(&input.join(format!("{i:06}.png"))).expect("png");
+        }
+        let file = dir.path().join("file");
+        std::fs::write(&file, "x").expect("write");
+        let viewer = crate::Viewer::start(crate::ViewerOptions {
+            bind: std::net::IpAddr::V4(std::net::Ipv4Addr::LOCALHOST),
+            port: 0,
+        })
+        .expect("viewer");
+        let shared = Arc::new(RunShared::default());
+        let controller = ViewController::new(viewer.handle(), Arc::clone(&shared), base());
+        let settings = |output: &Path| RunSettings {
+            input: input.clone(),
+            output: output.to_path_buf(),
+            ..RunSettings::default()
+        };
+        let e = controller.start(settings(&file.join("out"))).expect_err("under a file");
+        assert!(e.contains("is a file"), "{e}");
+        let out = dir.path().join("out");
+        let busy = colslam_slam::begin_run_output(&out).expect("lock");
+        let e = controller.start(settings(&out)).expect_err("busy");
+        assert!(e.contains("another process"), "{e}");
+        drop(busy);
+        assert!(shared.try_begin(), "no run was started");
     }
 
     #[test]

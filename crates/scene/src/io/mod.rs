@@ -17,7 +17,12 @@
 //! not survive a write; every image read from a model is registered, and the
 //! registration order is the file order.
 //!
-//! All files are written atomically (temporary file + rename), one by one.
+//! [`write_model`] writes a model folder as a whole (see
+//! [`colslam_image::OutputDir`]): into a staging folder beside it, swapped in
+//! when complete, so a reader finds the previous model or the new one, never
+//! a mix, and no file of another format or an earlier model survives.
+//! [`write_model_files`] writes the files into a folder of a larger output
+//! that is itself written as a whole (a run's outputs).
 
 mod binary;
 mod fmt;
@@ -137,11 +142,44 @@ pub fn read_model_format(dir: &Path, format: ModelFormat) -> Result<Reconstructi
     assemble(raw, &paths)
 }
 
-/// Writes a model folder (created if missing) in the given format: rigs,
-/// cameras, frames, images, points3D, each atomically. Only registered
-/// images are written (see the module docs).
+/// The names a model folder holds: the five files in either format.
+pub const MODEL_FILE_NAMES: [&str; 10] = [
+    "cameras.bin",
+    "images.bin",
+    "points3D.bin",
+    "rigs.bin",
+    "frames.bin",
+    "cameras.txt",
+    "images.txt",
+    "points3D.txt",
+    "rigs.txt",
+    "frames.txt",
+];
+
+/// Starts writing the model folder `dir` as a whole (see
+/// [`colslam_image::OutputDir::begin`]): checks the location, takes its lock
+/// and creates the staging folder. `dir` may be missing, empty or a model
+/// folder ([`MODEL_FILE_NAMES`]); a folder holding anything else is refused.
+/// Write with [`write_model_files`] into its [`path`](colslam_image::OutputDir::path),
+/// then [`commit`](colslam_image::OutputDir::commit).
+pub fn begin_model_output(dir: &Path) -> Result<colslam_image::OutputDir, SceneError> {
+    Ok(colslam_image::OutputDir::begin(dir, &MODEL_FILE_NAMES)?)
+}
+
+/// Writes a model folder in the given format as a whole: the folder then
+/// holds this model's five files (rigs, cameras, frames, images, points3D)
+/// and nothing else, or, should the write fail or be interrupted, what it
+/// held before. Only registered images are written (see the module docs).
 pub fn write_model(rec: &Reconstruction, dir: &Path, format: ModelFormat) -> Result<(), SceneError> {
-    std::fs::create_dir_all(dir).map_err(|e| SceneError::io(dir, e))?;
+    let out = begin_model_output(dir)?;
+    write_model_files(rec, out.path(), format)?;
+    Ok(out.commit()?)
+}
+
+/// Writes the five files of a model in the given format into the existing
+/// folder `dir`, each atomically, leaving other files alone: the building
+/// block of outputs written as a whole ([`write_model`], a run's outputs).
+pub fn write_model_files(rec: &Reconstruction, dir: &Path, format: ModelFormat) -> Result<(), SceneError> {
     let paths = ModelPaths::new(dir, format);
     let files: [(&PathBuf, Vec<u8>); 5] = match format {
         ModelFormat::Binary => [

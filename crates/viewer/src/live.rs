@@ -685,8 +685,8 @@ mod tests {
         let file = dir.path().join("file");
         std::fs::write(&file, "x").expect("write");
         let viewer = crate::Viewer::start(crate::ViewerOptions {
-            bind: std::net::IpAddr::V4(std::net::Ipv4Addr::LOCALHOST),
             port: 0,
+            ..crate::ViewerOptions::default()
         })
         .expect("viewer");
         let shared = Arc::new(RunShared::default());

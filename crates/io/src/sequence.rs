@@ -138,11 +138,29 @@ impl ImageSequence {
         self.entries.iter().map(|e| e.path.as_path())
     }
 
+    /// Adds the list-file context to an image error from the header reader.
+    fn in_context(&self, err: SourceError, e: &Entry) -> SourceError {
+        match err {
+            SourceError::Image { source, context } if context.is_empty() => SourceError::image(source, self.context(e)),
+            other => other,
+        }
+    }
+
     fn context(&self, e: &Entry) -> String {
         match &self.list {
             Some(list) if e.line > 0 => format!("; listed in {} line {}", list.display(), e.line),
             _ => String::new(),
         }
+    }
+}
+
+fn size_mismatch(path: &Path, (width, height): (usize, usize), expected: (usize, usize)) -> SourceError {
+    SourceError::SizeMismatch {
+        path: path.to_path_buf(),
+        width,
+        height,
+        expected_width: expected.0,
+        expected_height: expected.1,
     }
 }
 
@@ -154,20 +172,33 @@ impl Iterator for ImageSequence {
         let e = self.entries.get(index)?.clone();
         // A failed frame is consumed too, so a caller may skip it and go on.
         self.cursor += 1;
+        // The header is checked before the file is decoded: a frame of
+        // another size, or one beyond the decoding budget (a few megabytes
+        // of compressed zeros can announce gigabytes of pixels), is refused
+        // without allocating its pixels.
+        let reference = self.first_decoded.or(self.size);
+        let header = match image_size(&e.path) {
+            Ok(size) => size,
+            Err(err) => return Some(Err(self.in_context(err, &e))),
+        };
+        if let Some(reference) = reference
+            && header != reference
+        {
+            return Some(Err(size_mismatch(&e.path, header, reference)));
+        }
+        if let Err(err) = colslam_image::check_size(header.0, header.1, &e.path) {
+            return Some(Err(SourceError::image(err, self.context(&e))));
+        }
         let image = match Image::read(&e.path) {
             Ok(img) => img,
             Err(err) => return Some(Err(SourceError::image(err, self.context(&e)))),
         };
         let (w, h) = (image.width(), image.height());
-        let reference = *self.first_decoded.get_or_insert(self.size.unwrap_or((w, h)));
+        // The decoder agrees with the header parser on every valid file; a
+        // file replaced between the two reads is still caught here.
+        let reference = *self.first_decoded.get_or_insert(reference.unwrap_or((w, h)));
         if (w, h) != reference {
-            return Some(Err(SourceError::SizeMismatch {
-                path: e.path,
-                width: w,
-                height: h,
-                expected_width: reference.0,
-                expected_height: reference.1,
-            }));
+            return Some(Err(size_mismatch(&e.path, (w, h), reference)));
         }
         let name = e.path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
         Some(Ok(Frame { index, source_index: e.source_index, timestamp: e.timestamp, name, image }))

@@ -11,6 +11,7 @@ mod cmd_info;
 mod cmd_run;
 mod cmd_view;
 mod logging;
+mod stdout;
 
 use anyhow::Result;
 use clap::{Parser, Subcommand};

@@ -6,6 +6,7 @@ use std::path::{Path, PathBuf};
 use colslam_image::Image;
 
 use crate::detect::{KITTI_CALIB, Layout};
+use crate::error::{FileProblem, check_regular_file};
 use crate::layouts::{RawEntry, list_folder, list_kitti, parse_euroc, parse_tum};
 use crate::{Frame, FrameSource, SourceError, SourceKind, SourceOptions, detect_layout, find_camera_file, image_size};
 
@@ -108,9 +109,26 @@ impl ImageSequence {
             // Invariant: selected_count keeps source_index(k) < total for k < n.
             let Some(RawEntry { path: img, timestamp, line }) = raw.get(source_index).cloned() else { break };
             if let Some(list) = &list
-                && !img.is_file()
+                && let Err(problem) = check_regular_file(&img)
             {
-                return Err(SourceError::MissingListedImage { image: img, list: list.clone(), line });
+                let list = list.clone();
+                return Err(match problem {
+                    FileProblem::Missing => SourceError::MissingListedImage { image: img, list, line },
+                    FileProblem::NotAFile(what) => SourceError::UnusableListedImage {
+                        image: img,
+                        list,
+                        line,
+                        problem: format!("is {what}, not an image file"),
+                        source: None,
+                    },
+                    FileProblem::Unreadable(e) => SourceError::UnusableListedImage {
+                        image: img,
+                        list,
+                        line,
+                        problem: "cannot be examined".into(),
+                        source: Some(e),
+                    },
+                });
             }
             let timestamp = timestamp.unwrap_or_else(|| match opts.fps {
                 Some(fps) => source_index as f64 / fps,
@@ -148,7 +166,7 @@ impl ImageSequence {
 
     fn context(&self, e: &Entry) -> String {
         match &self.list {
-            Some(list) if e.line > 0 => format!("; listed in {} line {}", list.display(), e.line),
+            Some(list) if e.line > 0 => format!(" (listed in {} line {})", list.display(), e.line),
             _ => String::new(),
         }
     }

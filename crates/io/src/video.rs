@@ -105,9 +105,7 @@ impl VideoSource {
     /// Probes `path` with ffprobe; ffmpeg itself starts at the first `next()`.
     pub fn open(path: &Path, opts: &SourceOptions) -> Result<Self, SourceError> {
         opts.validate()?;
-        if !path.is_file() {
-            return Err(SourceError::NotFound { path: path.to_path_buf() });
-        }
+        crate::error::check_regular_file(path).map_err(|p| SourceError::not_a_file(path, p))?;
         let info = probe(path, opts)?;
         let gray = match opts.video.color {
             VideoColor::Gray => true,

@@ -7,7 +7,7 @@ use std::path::PathBuf;
 #[derive(Debug, thiserror::Error)]
 pub enum SceneError {
     /// An operating-system error on a file.
-    #[error("{path}: {source}")]
+    #[error("{path}")]
     Io {
         /// The file.
         path: PathBuf,
@@ -76,6 +76,21 @@ pub enum SceneError {
         expected: usize,
         /// Found count.
         got: usize,
+    },
+    /// A camera's values are unusable: a non-finite parameter, a focal
+    /// length that is not positive, a zero size or a principal point far
+    /// outside the image (the cause, [`colslam_camera::Camera::validate`]'s
+    /// error, says which).
+    #[error("{path}: {location}: camera {camera} is invalid")]
+    InvalidCamera {
+        /// The file.
+        path: PathBuf,
+        /// Where in it: "line 4" (text) or "record at byte 12" (binary).
+        location: String,
+        /// The camera.
+        camera: u32,
+        /// What is wrong.
+        source: colslam_camera::CameraError,
     },
     /// The model in a set of files is inconsistent (dangling references,
     /// duplicate ids, disagreeing links).

@@ -124,3 +124,16 @@ pub fn png_bomb(path: &Path, width: u32, height: u32) {
     }
     s.finish().unwrap();
 }
+
+/// An error and its causes joined by ": " (what the binary prints): a
+/// cause is not repeated in its wrapper's message, so tests read the chain.
+pub fn chain(e: &dyn std::error::Error) -> String {
+    let mut s = e.to_string();
+    let mut cause = e.source();
+    while let Some(c) = cause {
+        s.push_str(": ");
+        s.push_str(&c.to_string());
+        cause = c.source();
+    }
+    s
+}

@@ -89,8 +89,9 @@ pub enum SceneError {
         location: String,
         /// The camera.
         camera: u32,
-        /// What is wrong.
-        source: colslam_camera::CameraError,
+        /// What is wrong (boxed: it would more than double the size of
+        /// every `Result` of this crate).
+        source: Box<colslam_camera::CameraError>,
     },
     /// The model in a set of files is inconsistent (dangling references,
     /// duplicate ids, disagreeing links).

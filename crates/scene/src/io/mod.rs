@@ -305,7 +305,7 @@ pub(crate) fn make_camera(
         path: path.to_path_buf(),
         location: loc.to_string(),
         camera: id,
-        source,
+        source: Box::new(source),
     })?;
     Ok(camera)
 }

@@ -29,6 +29,7 @@
 //! threads) of that run.
 
 use crate::features::{machine, peer_script};
+use crate::stdout::outln;
 use anyhow::{Context, Result, anyhow, bail};
 use colslam_geometry::stats::upper_median_in_place;
 use colslam_geometry::{Quat, Rigid3, SplitMix64, Vec3};
@@ -554,7 +555,7 @@ pub fn run(args: &Args, quiet: bool) -> Result<()> {
         "problems": rows,
     });
     if args.json {
-        println!("{}", serde_json::to_string_pretty(&out)?);
+        outln!("{}", serde_json::to_string_pretty(&out)?);
         return Ok(());
     }
     print_table(&out);
@@ -564,7 +565,7 @@ pub fn run(args: &Args, quiet: bool) -> Result<()> {
 /// Human-readable table of the JSON result.
 fn print_table(out: &Value) {
     let m = &out["machine"];
-    println!(
+    outln!(
         "bundle adjustment, colslam-optim vs Ceres (pycolmap {}), {} thread(s); {} cores ({}), load {}",
         out["pycolmap_version"].as_str().unwrap_or("?"),
         out["threads"],
@@ -574,7 +575,7 @@ fn print_table(out: &Value) {
     );
     let f = |v: &Value| v.as_f64().unwrap_or(f64::NAN);
     for p in out["problems"].as_array().into_iter().flatten() {
-        println!(
+        outln!(
             "\n{} ({}; {} images, {} points, {} observations, loss {})",
             p["name"].as_str().unwrap_or("?"),
             p["description"].as_str().unwrap_or("?"),
@@ -583,23 +584,23 @@ fn print_table(out: &Value) {
             p["num_observations"],
             p["loss"].as_str().unwrap_or("?"),
         );
-        println!("  {:<22} {:>16} {:>16} {:>10}", "", "colslam", "ceres", "ours/ceres");
-        println!("  {:<22} {:>16.6} {:>16.6}", "initial cost", f(&p["ours_initial_cost"]), f(&p["ceres_initial_cost"]));
-        println!(
+        outln!("  {:<22} {:>16} {:>16} {:>10}", "", "colslam", "ceres", "ours/ceres");
+        outln!("  {:<22} {:>16.6} {:>16.6}", "initial cost", f(&p["ours_initial_cost"]), f(&p["ceres_initial_cost"]));
+        outln!(
             "  {:<22} {:>16.6} {:>16.6} {:>+9.5}%",
             "final cost",
             f(&p["ours_final_cost"]),
             f(&p["ceres_final_cost"]),
             100.0 * f(&p["final_cost_rel_diff"])
         );
-        println!(
+        outln!(
             "  {:<22} {:>16} {:>16}",
             "iterations",
             p["ours_iterations"].to_string(),
             p["ceres_iterations"].to_string()
         );
-        println!("  {:<22} {:>16.3} {:>16.3} {:>10.2}", "wall s", f(&p["ours_s"]), f(&p["ceres_s"]), f(&p["ratio"]));
-        println!(
+        outln!("  {:<22} {:>16.3} {:>16.3} {:>10.2}", "wall s", f(&p["ours_s"]), f(&p["ceres_s"]), f(&p["ratio"]));
+        outln!(
             "  {:<22} {:>16.3} {:>16.3} {:>10.2}",
             "CPU s",
             f(&p["ours_cpu_s"]),
@@ -607,7 +608,7 @@ fn print_table(out: &Value) {
             f(&p["ours_cpu_s"]) / f(&p["ceres_cpu_s"])
         );
         if p.get("ours_1t_cpu_s").is_some() {
-            println!(
+            outln!(
                 "  {:<22} {:>16.3} {:>16.3} {:>10.2}",
                 "1-thread CPU s",
                 f(&p["ours_1t_cpu_s"]),
@@ -615,7 +616,7 @@ fn print_table(out: &Value) {
                 f(&p["ratio_1t_cpu"])
             );
         }
-        println!(
+        outln!(
             "  {:<22} {:>16} {:>16}",
             "linear solver",
             p["ours_linear_solver"].as_str().unwrap_or("?"),

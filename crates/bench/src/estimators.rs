@@ -15,6 +15,7 @@
 //! estimators have no threads; pycolmap's RANSAC `num_threads` is 1, its
 //! default).
 
+use crate::stdout::outln;
 use std::time::Instant;
 
 use anyhow::{Context, Result, anyhow, bail};
@@ -241,18 +242,18 @@ pub fn run(args: &Args, quiet: bool) -> Result<()> {
         "machine": machine(),
     });
     if args.json {
-        println!("{}", serde_json::to_string_pretty(&result)?);
+        outln!("{}", serde_json::to_string_pretty(&result)?);
         return Ok(());
     }
     let m = &result["machine"];
-    println!(
+    outln!(
         "bench estimators: {} repeats, {} cores, {}, load {}",
         args.repeats,
         m["nproc"],
         m["cpu_model"].as_str().unwrap_or("?"),
         m["loadavg"].as_str().unwrap_or("?")
     );
-    println!("{:<44} {:>10} {:>10} {:>10}", "measure", "colslam", "pycolmap", "ours/peer");
+    outln!("{:<44} {:>10} {:>10} {:>10}", "measure", "colslam", "pycolmap", "ours/peer");
     let f = |v: &Value| v.as_f64().unwrap_or(f64::NAN);
     let (e, a) = (&result["essential"], &result["absolute_pose"]);
     let rows = [
@@ -275,7 +276,7 @@ pub fn run(args: &Args, quiet: bool) -> Result<()> {
     ];
     for (name, x, y) in rows {
         let ratio = if y > 0.0 { format!("{:.2}", x / y) } else { "-".into() };
-        println!("{name:<44} {x:>10.4} {y:>10.4} {ratio:>10}");
+        outln!("{name:<44} {x:>10.4} {y:>10.4} {ratio:>10}");
     }
     Ok(())
 }

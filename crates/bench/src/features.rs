@@ -22,6 +22,7 @@
 //! venv's interpreter ([`colslam_testutil::find_peer_python`]: `COLSLAM_PYTHON`,
 //! else `.venv/bin/python` here or above, else the workspace's).
 
+use crate::stdout::outln;
 use std::path::{Path, PathBuf};
 use std::process::Command;
 use std::time::Instant;
@@ -642,12 +643,12 @@ pub fn run(args: &Args, quiet: bool) -> Result<()> {
         "machine": machine(),
     });
     if args.json {
-        println!("{}", serde_json::to_string_pretty(&result)?);
+        outln!("{}", serde_json::to_string_pretty(&result)?);
         return Ok(());
     }
     let r = |a: f64, b: f64| if b > 0.0 { format!("{:.2}", a / b) } else { "-".into() };
     let m = machine();
-    println!(
+    outln!(
         "bench features: {} ({} frames, {} pairs), {} cores, {}, load {}",
         DATASET,
         frames.len(),
@@ -656,7 +657,7 @@ pub fn run(args: &Args, quiet: bool) -> Result<()> {
         m["cpu_model"].as_str().unwrap_or("?"),
         m["loadavg"].as_str().unwrap_or("?")
     );
-    println!("{:<38} {:>10} {:>10} {:>10}", "measure", "colslam", "OpenCV", "ours/peer");
+    outln!("{:<38} {:>10} {:>10} {:>10}", "measure", "colslam", "OpenCV", "ours/peer");
     let rows = [
         ("ORB 1000 kp, ms/frame (1 thread)", o("orb_ms_1000_1t"), cv_ms_1000),
         ("ORB 2000 kp, ms/frame (1 thread)", o("orb_ms_2000_1t"), cv_ms_2000),
@@ -669,15 +670,15 @@ pub fn run(args: &Args, quiet: bool) -> Result<()> {
         ("GT-consistent share of matches", ratio(good, total), ratio(cv_good, cv_total)),
     ];
     for (name, a, b) in rows {
-        println!("{name:<38} {a:>10.3} {b:>10.3} {:>10}", r(a, b));
+        outln!("{name:<38} {a:>10.3} {b:>10.3} {:>10}", r(a, b));
     }
-    println!(
+    outln!(
         "(identical match counts on identical descriptors: {same_counts}; OpenCV default FAST threshold 20: {:.1} consistent matches per pair, share {:.3})",
         cv_def_good as f64 / pairs,
         ratio(cv_def_good, cv_def_total)
     );
     match &xfeat {
-        Ok(v) => println!(
+        Ok(v) => outln!(
             "XFeat ({} kp, 2 threads): {:.1} ms/frame, MNN matching {:.1} ms/pair, {:.1} GT-consistent matches per pair (share {:.3})",
             XFEAT_FEATURES,
             v["extract_ms"].as_f64().unwrap_or(f64::NAN),
@@ -685,9 +686,9 @@ pub fn run(args: &Args, quiet: bool) -> Result<()> {
             v["gt_consistent_matches"].as_f64().unwrap_or(f64::NAN),
             v["gt_consistent_ratio"].as_f64().unwrap_or(f64::NAN)
         ),
-        Err(e) => println!("XFeat not run: {e}"),
+        Err(e) => outln!("XFeat not run: {e}"),
     }
-    println!(
+    outln!(
         "(ours with the default matcher, ratio 0.9 and <= 64 bits: {:.1} consistent matches per pair, share {:.3})",
         good_def as f64 / pairs,
         ratio(good_def, total_def)

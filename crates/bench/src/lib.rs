@@ -12,6 +12,7 @@
 pub mod ba;
 pub mod estimators;
 pub mod features;
+pub mod stdout;
 pub mod suite;
 
 use anyhow::Result;

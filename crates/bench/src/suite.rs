@@ -11,6 +11,7 @@
 //! XFeat + LighterGlue) and, with `--sweep`, Table 3 (one parameter at a
 //! time) on our data.
 
+use crate::stdout::outln;
 mod plot;
 mod report;
 mod runner;
@@ -603,8 +604,8 @@ pub fn run(args: &SuiteArgs, quiet: bool) -> Result<()> {
     let md = report::markdown(&report);
     colslam_image::write_atomic(&out.join("report.md"), md.as_bytes()).context("writing report.md")?;
     if !quiet {
-        println!("{}", report::summary_table(&report.summary));
-        println!("report: {}", out.join("report.md").display());
+        outln!("{}", report::summary_table(&report.summary));
+        outln!("report: {}", out.join("report.md").display());
     }
     Ok(())
 }

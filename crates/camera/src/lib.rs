@@ -64,7 +64,7 @@ pub enum CameraError {
         reason: String,
     },
     /// A camera file could not be read or written.
-    #[error("{path}: {action}: {source}")]
+    #[error("{path}: {action}")]
     Io {
         /// The file.
         path: PathBuf,

@@ -2,6 +2,7 @@
 //! sequence (a textured room along a hand-held-like path, exact ground truth)
 //! in TUM layout, ready for `colslam run` and `colslam eval`.
 
+use crate::stdout::outln;
 use anyhow::{Context, Result};
 use colslam_synth::{SynthOptions, generate};
 use std::path::PathBuf;
@@ -82,7 +83,7 @@ pub fn run(args: &DemoArgs, quiet: bool) -> Result<()> {
     let synth = generate(&opts, &args.output, Some(&progress))
         .with_context(|| format!("generating the synthetic sequence in {}", args.output.display()))?;
     pb.finish_and_clear();
-    println!("synthetic sequence: {} ({synth})", args.output.display());
+    outln!("synthetic sequence: {} ({synth})", args.output.display());
     if args.generate_only {
         return Ok(());
     }
@@ -95,7 +96,7 @@ pub fn run(args: &DemoArgs, quiet: bool) -> Result<()> {
         crate::cmd_run::run_with_progress(&run_args, quiet, colslam_slam::EventSink::none(), Default::default())?;
     crate::cmd_run::print_outcome(&run_args, &outcome);
     if let Some(e) = &outcome.report.eval {
-        println!(
+        outln!(
             "ATE RMSE {:.4} m over {} frames = {:.4} % of the scene diagonal ({:.2} m); plot: {}",
             e.ate_rmse,
             e.matched,

@@ -1,6 +1,7 @@
 //! `colslam eval`: ATE and RPE of an estimated trajectory against ground
 //! truth, with the numbers of `evo_ape tum -as` / `evo_rpe tum -as`, and a plot.
 
+use crate::stdout::outln;
 use anyhow::{Context, Result};
 use colslam_eval::{Alignment, EvalOptions, evaluate_files, plot::plot_evaluation};
 use std::path::PathBuf;
@@ -74,9 +75,9 @@ pub fn run(args: &EvalArgs) -> Result<()> {
         tracing::info!("plot written to {}", path.display());
     }
     if args.json {
-        println!("{}", serde_json::to_string(&report)?);
+        outln!("{}", serde_json::to_string(&report)?);
     } else {
-        println!("{report}");
+        outln!("{report}");
     }
     Ok(())
 }

@@ -1,6 +1,7 @@
 //! `colslam export`: convert a COLMAP model between binary and text, or
 //! export its point cloud (PLY) or its registered poses (TUM trajectory).
 
+use crate::stdout::outln;
 use anyhow::Result;
 use std::path::PathBuf;
 
@@ -52,6 +53,6 @@ pub fn run(args: &ExportArgs) -> Result<()> {
             traj.write_tum(&args.output)?;
         }
     }
-    println!("wrote {}", args.output.display());
+    outln!("wrote {}", args.output.display());
     Ok(())
 }

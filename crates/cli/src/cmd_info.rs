@@ -1,5 +1,6 @@
 //! `colslam info`: describe a COLMAP model folder or an input sequence.
 
+use crate::stdout::outln;
 use anyhow::Result;
 use colslam_eval::trajectory::Trajectory;
 use colslam_scene::Reconstruction;
@@ -17,9 +18,9 @@ pub struct InfoArgs {
 pub fn run(args: &InfoArgs) -> Result<()> {
     if is_model_dir(&args.path) {
         let rec = colslam_scene::read_model(&args.path)?;
-        println!("{}", describe_model(&rec));
+        outln!("{}", describe_model(&rec));
     } else {
-        println!("{}", describe_input(&args.path)?);
+        outln!("{}", describe_input(&args.path)?);
     }
     Ok(())
 }
@@ -56,7 +57,9 @@ pub fn describe_input(path: &Path) -> Result<String> {
                 let _ = write!(s, "\ncamera: {} {}x{} {:?}", cam.model, cam.width, cam.height, cam.params);
             }
             Err(e) => {
-                let _ = write!(s, "\ncamera file {} not usable: {e}", cam_path.display());
+                // The cause (an OS error) is the error's source, not in its message.
+                let e = anyhow::Error::new(e);
+                let _ = write!(s, "\ncamera file {} not usable: {e:#}", cam_path.display());
             }
         }
     }

@@ -2,6 +2,7 @@
 //! the library's driver ([`colslam_slam::run::run`]); this file only adds
 //! the progress bar and the printed summary.
 
+use crate::stdout::outln;
 use anyhow::Result;
 use colslam_slam::run::{RunConfig, RunHooks, RunOutput, RunStart};
 use colslam_slam::{EventSink, RunReport};
@@ -57,8 +58,8 @@ pub fn summary(r: &RunReport) -> String {
 
 /// Prints a finished run's summary and where its outputs are.
 pub fn print_outcome(config: &RunConfig, out: &RunOutput) {
-    println!("{}", summary(&out.report));
-    println!("outputs in {}", config.output.display());
+    outln!("{}", summary(&out.report));
+    outln!("outputs in {}", config.output.display());
 }
 
 /// Arguments of `run`: the run and the viewer flags.

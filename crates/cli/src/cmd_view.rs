@@ -6,6 +6,7 @@
 //! `run --view --view-exit` the process exits when the run ends instead (for
 //! scripts and tests).
 
+use crate::stdout::outln;
 use anyhow::{Context, Result};
 use colslam_slam::run::{RunConfig, RunOptions};
 use colslam_viewer::{DEFAULT_PORT, RunShared, ViewController, Viewer, ViewerOptions, run_live};
@@ -96,9 +97,9 @@ pub fn run(args: &ViewArgs) -> Result<()> {
     }
     announce(&viewer)?;
     if let Some(rec) = &model {
-        println!("showing {} cameras and {} points", rec.num_registered_images(), rec.num_points3d());
+        outln!("showing {} cameras and {} points", rec.num_registered_images(), rec.num_points3d());
     }
-    println!("serving until Ctrl-C");
+    outln!("serving until Ctrl-C");
     std::io::stdout().flush()?;
     viewer.wait();
     Ok(())
@@ -124,7 +125,7 @@ pub fn run_followed(config: &RunConfig, v: &RunViewArgs, quiet: bool) -> Result<
         viewer.shutdown();
         return Ok(());
     }
-    println!("run finished; the viewer keeps serving at {} until Ctrl-C", viewer.url());
+    outln!("run finished; the viewer keeps serving at {} until Ctrl-C", viewer.url());
     std::io::stdout().flush()?;
     viewer.wait();
     Ok(())

@@ -11,6 +11,10 @@ mod cmd_info;
 mod cmd_run;
 mod cmd_view;
 mod logging;
+/// Printing to stdout that ends quietly on a closed pipe: the bench lab's helper.
+mod stdout {
+    pub(crate) use colslam_bench::outln;
+}
 
 use anyhow::Result;
 use clap::{Parser, Subcommand};

@@ -103,11 +103,16 @@ impl Trajectory {
         Self::parse_tum(&text, path)
     }
 
-    /// Parses TUM text; `path` only names the source in errors.
+    /// Parses TUM text; `path` only names the source in errors. Timestamps
+    /// must increase strictly from line to line, as in the TUM benchmark's
+    /// files: a repeated or earlier stamp (a concatenated or hand-edited
+    /// file) would pair one pose with several and make an evaluation fail
+    /// much later with a message that no longer names the line.
     pub fn parse_tum(text: &str, path: &Path) -> Result<Trajectory, EvalError> {
         // A UTF-8 byte-order mark would otherwise make the first stamp non-numeric.
         let text = text.strip_prefix('\u{feff}').unwrap_or(text);
         let mut traj = Trajectory::default();
+        let mut previous: Option<(f64, usize)> = None;
         for (index, raw) in text.lines().enumerate() {
             let line_no = index + 1;
             let line = raw.trim();
@@ -140,6 +145,15 @@ impl Trajectory {
             }
             let rotation =
                 if (norm - 1.0).abs() <= UNIT_NORM_TOL { Quat::new_unchecked(q) } else { Quat::new_normalize(q) };
+            if let Some((prev, prev_line)) = previous
+                && t <= prev
+            {
+                let how = if t == prev { "repeats" } else { "is earlier than" };
+                return Err(err(format!(
+                    "timestamp {t} {how} the one on line {prev_line} ({prev}); timestamps must increase strictly"
+                )));
+            }
+            previous = Some((t, line_no));
             traj.stamps.push(t);
             traj.poses.push(Rigid3::new(rotation, Vec3::new(tx, ty, tz)));
         }
@@ -227,6 +241,8 @@ mod tests {
             ("1 0 0 0 0 0 0 nan\n", "field 8 (qw) is not finite"),
             ("inf 0 0 0 0 0 0 1\n", "field 1 (timestamp) is not finite"),
             ("1 0 0 0 0 0 0 0\n", "zero norm"),
+            ("1 0 0 0 0 0 0 1\n", "timestamp 1 repeats the one on line 2"),
+            ("0.5 0 0 0 0 0 0 1\n", "timestamp 0.5 is earlier than the one on line 2"),
         ];
         for (bad, expect) in cases {
             let text = format!("# c\n{good}\n{bad}");

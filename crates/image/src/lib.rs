@@ -10,7 +10,7 @@ pub use output::{OutputDir, OutputError, fault, write_atomic};
 #[derive(Debug, thiserror::Error)]
 pub enum ImageError {
     /// The file could not be read or written.
-    #[error("{path}: {source}")]
+    #[error("{path}")]
     Io {
         /// The file.
         path: PathBuf,
@@ -43,6 +43,20 @@ pub enum ImageError {
         /// Channels.
         channels: usize,
     },
+    /// The header announces an image beyond the decoding budget
+    /// ([`MAX_PIXELS`], [`MAX_DECODED_BYTES`], [`MAX_SIDE`]); refused before
+    /// any pixel buffer is allocated.
+    #[error("{path}: image of {width}x{height} is too large to decode ({reason})")]
+    TooLarge {
+        /// The file.
+        path: PathBuf,
+        /// Width from the header.
+        width: usize,
+        /// Height from the header.
+        height: usize,
+        /// Which limit it exceeds.
+        reason: String,
+    },
     /// PNG encoding failed.
     #[error("{path}: cannot encode PNG: {reason}")]
     Encode {
@@ -51,6 +65,63 @@ pub enum ImageError {
         /// What went wrong.
         reason: String,
     },
+}
+
+/// Most pixels an image may have to be decoded (64 Mpx, e.g. 8192x8192):
+/// above any camera a SLAM input comes from (8K video is 33 Mpx), and small
+/// enough that the decoder's buffers stay well under a gigabyte. A compressed
+/// file announcing more (a "decompression bomb": a few megabytes of zeros
+/// claiming 16000x16000) is refused from its header alone.
+pub const MAX_PIXELS: usize = 1 << 26;
+/// Most bytes the decoder's raw output may take (samples of up to 16 bits
+/// before reduction to 8 bits): 256 MiB, so a 16-bit RGBA file within
+/// [`MAX_PIXELS`] cannot make the decoder's working copies reach gigabytes.
+pub const MAX_DECODED_BYTES: usize = 1 << 28;
+/// Longest side accepted (also set as the decoders' own width/height limit).
+pub const MAX_SIDE: usize = 1 << 15;
+
+/// Checks a size read from a header against [`MAX_SIDE`] and [`MAX_PIXELS`];
+/// `path` only names the source in the error. Callers that learn a size
+/// before decoding (image headers, a video's probe) use it to refuse
+/// oversized inputs before allocating anything.
+pub fn check_size(width: usize, height: usize, path: &Path) -> Result<(), ImageError> {
+    let too_large = |reason: String| ImageError::TooLarge { path: path.to_path_buf(), width, height, reason };
+    if width > MAX_SIDE || height > MAX_SIDE {
+        return Err(too_large(format!("a side is longer than {MAX_SIDE} pixels")));
+    }
+    match width.checked_mul(height) {
+        Some(px) if px <= MAX_PIXELS => Ok(()),
+        _ => Err(too_large(format!("more than the {} Mpx limit", MAX_PIXELS >> 20))),
+    }
+}
+
+/// [`check_size`], plus [`MAX_DECODED_BYTES`] for `components` samples of
+/// `bytes_per_sample` bytes per pixel.
+fn check_decode_size(
+    width: usize,
+    height: usize,
+    components: usize,
+    bytes_per_sample: usize,
+    path: &Path,
+) -> Result<(), ImageError> {
+    check_size(width, height, path)?;
+    // check_size bounds width * height by MAX_PIXELS, and components (<= 4)
+    // times bytes_per_sample (<= 2) cannot overflow it on a 64-bit usize;
+    // checked anyway for 32-bit targets.
+    let bytes = width.checked_mul(height).and_then(|p| p.checked_mul(components * bytes_per_sample));
+    match bytes {
+        Some(b) if b <= MAX_DECODED_BYTES => Ok(()),
+        _ => Err(ImageError::TooLarge {
+            path: path.to_path_buf(),
+            width,
+            height,
+            reason: format!(
+                "{components} channel(s) of {} bits need more than {} MiB",
+                8 * bytes_per_sample,
+                MAX_DECODED_BYTES >> 20
+            ),
+        }),
+    }
 }
 
 /// An owned 8-bit image with 1 (gray) or 3 (RGB) interleaved channels.
@@ -158,23 +229,33 @@ impl Image {
     }
 
     /// Decodes PNG or JPEG bytes; `path` only names the source in errors.
+    /// The header is read first and an image beyond [`check_size`]'s limits
+    /// or [`MAX_DECODED_BYTES`] is refused before any pixel buffer exists.
     pub fn decode(bytes: &[u8], path: &Path) -> Result<Image, ImageError> {
+        use zune_png::zune_core::bit_depth::BitDepth;
+        use zune_png::zune_core::options::DecoderOptions;
         let derr = |reason: String| ImageError::Decode { path: path.to_path_buf(), reason };
+        let limits = DecoderOptions::default().set_max_width(MAX_SIDE).set_max_height(MAX_SIDE);
         if bytes.starts_with(&[0x89, b'P', b'N', b'G']) {
-            let mut dec = zune_png::PngDecoder::new(zune_png::zune_core::bytestream::ZCursor::new(bytes));
-            let opts = zune_png::zune_core::options::DecoderOptions::default().png_set_strip_to_8bit(true);
-            dec.set_options(opts);
-            let px = dec.decode_raw().map_err(|e| derr(format!("{e:?}")))?;
+            let opts = limits.png_set_strip_to_8bit(true);
+            let mut dec =
+                zune_png::PngDecoder::new_with_options(zune_png::zune_core::bytestream::ZCursor::new(bytes), opts);
+            dec.decode_headers().map_err(|e| derr(format!("{e:?}")))?;
             let (w, h) = dec.dimensions().ok_or_else(|| derr("no dimensions".into()))?;
             let cs = dec.colorspace().ok_or_else(|| derr("no colour space".into()))?;
+            let sample = if dec.depth() == Some(BitDepth::Sixteen) { 2 } else { 1 };
+            check_decode_size(w, h, cs.num_components(), sample, path)?;
+            let px = dec.decode_raw().map_err(|e| derr(format!("{e:?}")))?;
             from_colorspace(w, h, cs.num_components(), cs.has_alpha(), px).map_err(|e| derr(e.to_string()))
         } else if bytes.starts_with(&[0xFF, 0xD8]) {
-            let mut dec = zune_jpeg::JpegDecoder::new(zune_jpeg::zune_core::bytestream::ZCursor::new(bytes));
-            let px = dec.decode().map_err(|e| derr(format!("{e:?}")))?;
-            let info = dec.info().ok_or_else(|| derr("no header".into()))?;
+            let mut dec =
+                zune_jpeg::JpegDecoder::new_with_options(zune_jpeg::zune_core::bytestream::ZCursor::new(bytes), limits);
+            dec.decode_headers().map_err(|e| derr(format!("{e:?}")))?;
+            let (w, h) = dec.dimensions().ok_or_else(|| derr("no header".into()))?;
             let cs = dec.output_colorspace().ok_or_else(|| derr("no colour space".into()))?;
-            from_colorspace(info.width as usize, info.height as usize, cs.num_components(), cs.has_alpha(), px)
-                .map_err(|e| derr(e.to_string()))
+            check_decode_size(w, h, cs.num_components(), 1, path)?;
+            let px = dec.decode().map_err(|e| derr(format!("{e:?}")))?;
+            from_colorspace(w, h, cs.num_components(), cs.has_alpha(), px).map_err(|e| derr(e.to_string()))
         } else {
             Err(ImageError::UnsupportedFormat { path: path.to_path_buf() })
         }
@@ -229,6 +310,38 @@ mod tests {
             img.write_png(&p).unwrap();
             assert_eq!(Image::read(&p).unwrap(), img);
         }
+    }
+
+    /// A PNG whose header announces `w`x`h` 8-bit gray pixels, without
+    /// pixel data (enough for the header check).
+    fn png_header_only(w: u32, h: u32) -> Vec<u8> {
+        let mut out = Vec::new();
+        {
+            let mut enc = png::Encoder::new(&mut out, w, h);
+            enc.set_color(png::ColorType::Grayscale);
+            enc.set_depth(png::BitDepth::Eight);
+            let _writer = enc.write_header().unwrap();
+        }
+        out
+    }
+
+    #[test]
+    fn oversized_headers_are_refused_before_decoding() {
+        let p = Path::new("big.png");
+        let e = Image::decode(&png_header_only(9000, 9000), p).unwrap_err();
+        assert!(matches!(e, ImageError::TooLarge { width: 9000, height: 9000, .. }), "{e}");
+        assert!(e.to_string().contains("big.png") && e.to_string().contains("9000x9000"), "{e}");
+        // A side beyond MAX_SIDE is the decoder's own limit.
+        for (w, h) in [(40000, 10), (10, 40000)] {
+            let e = Image::decode(&png_header_only(w, h), p).unwrap_err().to_string();
+            assert!(e.contains("big.png") && e.contains("40000"), "{e}");
+        }
+        assert!(check_size(8192, 8192, p).is_ok());
+        assert!(check_size(8193, 8192, p).is_err());
+        assert!(check_size(usize::MAX, 2, p).is_err());
+        // 16-bit RGBA within the pixel budget still exceeds the byte budget.
+        assert!(check_decode_size(8192, 8192, 4, 2, p).is_err());
+        assert!(check_decode_size(8192, 8192, 3, 1, p).is_ok());
     }
 
     #[test]

@@ -3,7 +3,10 @@
 use std::path::PathBuf;
 
 /// Errors from opening or reading a frame source. Every variant names the
-/// file or folder it is about.
+/// file or folder it is about. A variant with a cause (an OS or decoding
+/// error) does not repeat it in its message: the cause is its
+/// [`source`](std::error::Error::source), so print the chain (`{:#}` with
+/// anyhow) to show both once.
 #[derive(Debug, thiserror::Error)]
 pub enum SourceError {
     /// The given path does not exist.
@@ -38,6 +41,29 @@ pub enum SourceError {
         /// 1-based line number in the list file (0 when the image was paired by position).
         line: usize,
     },
+    /// An image named by a list file exists but is not a regular file (a
+    /// folder, a device), or its metadata cannot be read (permissions).
+    #[error("image {image} listed in {list} (line {line}) {problem}")]
+    UnusableListedImage {
+        /// The image path.
+        image: PathBuf,
+        /// The list file naming it.
+        list: PathBuf,
+        /// 1-based line number in the list file (0 when paired by position).
+        line: usize,
+        /// What it is instead ("is a folder, not an image file", "cannot be read").
+        problem: String,
+        /// The OS error, when there is one.
+        source: Option<std::io::Error>,
+    },
+    /// A path that must be a file (a video) exists but is something else.
+    #[error("{path}: is {what}, not a regular file")]
+    NotAFile {
+        /// The path.
+        path: PathBuf,
+        /// What it is: "a folder", "a special file".
+        what: &'static str,
+    },
     /// A line of a list file (rgb.txt, data.csv, times.txt) cannot be parsed.
     #[error("{file}:{line}: {reason}: {content:?}")]
     MalformedLine {
@@ -58,12 +84,12 @@ pub enum SourceError {
         /// What is wrong.
         reason: String,
     },
-    /// An image could not be read or decoded (the inner error names the file).
-    #[error("{source}{context}")]
+    /// An image could not be read or decoded (the source names the file).
+    #[error("cannot read image{context}")]
     Image {
         /// The decoding error.
         source: colslam_image::ImageError,
-        /// Extra context (e.g. "; listed in rgb.txt line 4"), empty or starting with "; ".
+        /// Extra context (e.g. " (listed in rgb.txt line 4)"), empty or starting with " ".
         context: String,
     },
     /// A frame's size differs from the first frame's.
@@ -81,7 +107,7 @@ pub enum SourceError {
         expected_height: usize,
     },
     /// A file or folder could not be read.
-    #[error("{path}: {source}")]
+    #[error("{path}")]
     Io {
         /// The path.
         path: PathBuf,
@@ -132,7 +158,41 @@ pub enum SourceError {
     },
 }
 
+/// What stands in the way of reading `path` as a regular file.
+#[derive(Debug)]
+pub(crate) enum FileProblem {
+    /// Nothing is there.
+    Missing,
+    /// Something other than a regular file is there ("a folder", "a special file").
+    NotAFile(&'static str),
+    /// Its metadata cannot be read (e.g. a folder on the way is not searchable).
+    Unreadable(std::io::Error),
+}
+
+/// Checks that `path` is a regular file (following symbolic links), telling
+/// a missing path from a folder or special file and from one that cannot be
+/// examined, so that no message says "does not exist" of a path that does.
+pub(crate) fn check_regular_file(path: &std::path::Path) -> Result<(), FileProblem> {
+    match std::fs::metadata(path) {
+        Ok(m) if m.is_file() => Ok(()),
+        Ok(m) if m.is_dir() => Err(FileProblem::NotAFile("a folder")),
+        Ok(_) => Err(FileProblem::NotAFile("a special file")),
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => Err(FileProblem::Missing),
+        Err(e) => Err(FileProblem::Unreadable(e)),
+    }
+}
+
 impl SourceError {
+    /// The error for a path that must be a regular file but is not.
+    pub(crate) fn not_a_file(path: impl Into<PathBuf>, problem: FileProblem) -> Self {
+        let path = path.into();
+        match problem {
+            FileProblem::Missing => SourceError::NotFound { path },
+            FileProblem::NotAFile(what) => SourceError::NotAFile { path, what },
+            FileProblem::Unreadable(source) => SourceError::Io { path, source },
+        }
+    }
+
     /// Wraps an image decoding error with extra context.
     pub(crate) fn image(source: colslam_image::ImageError, context: String) -> Self {
         SourceError::Image { source, context }

@@ -37,6 +37,32 @@ fn malformed(file: &Path, line: usize, content: &str, reason: impl Into<String>)
     SourceError::MalformedLine { file: file.to_path_buf(), line, content: content.to_string(), reason: reason.into() }
 }
 
+/// Checks that `t` (on `line`) comes strictly after the previous timestamp
+/// of the list, then records it. Frames of a sequence are taken in list
+/// order, and a repeated or earlier stamp (a concatenated or hand-edited
+/// list) would otherwise surface only later, as a degenerate evaluation.
+fn check_increasing<T: PartialOrd + std::fmt::Display + Copy>(
+    previous: &mut Option<(T, usize)>,
+    t: T,
+    file: &Path,
+    line: usize,
+    content: &str,
+) -> Result<(), SourceError> {
+    if let Some((prev, prev_line)) = *previous
+        && t <= prev
+    {
+        let how = if t == prev { "repeats" } else { "is earlier than" };
+        return Err(malformed(
+            file,
+            line,
+            content,
+            format!("timestamp {t} {how} the one on line {prev_line} ({prev}); timestamps must increase strictly"),
+        ));
+    }
+    *previous = Some((t, line));
+    Ok(())
+}
+
 fn parse_seconds(tok: &str) -> Option<f64> {
     tok.parse::<f64>().ok().filter(|t| t.is_finite())
 }
@@ -44,12 +70,14 @@ fn parse_seconds(tok: &str) -> Option<f64> {
 /// TUM `rgb.txt`: `timestamp path` per line, `#` comments; paths relative to `dir`.
 pub(crate) fn parse_tum(dir: &Path, list: &Path) -> Result<Vec<RawEntry>, SourceError> {
     let mut out = Vec::new();
+    let mut previous = None;
     for (n, line) in content_lines(list)? {
         let toks: Vec<&str> = line.split_whitespace().collect();
         let [ts, rel] = toks.as_slice() else {
             return Err(malformed(list, n, &line, "expected `timestamp path`"));
         };
         let timestamp = parse_seconds(ts).ok_or_else(|| malformed(list, n, &line, format!("bad timestamp {ts:?}")))?;
+        check_increasing(&mut previous, timestamp, list, n, &line)?;
         out.push(RawEntry { path: dir.join(rel), timestamp: Some(timestamp), line: n });
     }
     Ok(out)
@@ -59,6 +87,7 @@ pub(crate) fn parse_tum(dir: &Path, list: &Path) -> Result<Vec<RawEntry>, Source
 pub(crate) fn parse_euroc(cam_dir: &Path, list: &Path) -> Result<Vec<RawEntry>, SourceError> {
     let data = cam_dir.join(EUROC_DATA_DIR);
     let mut out = Vec::new();
+    let mut previous = None;
     for (n, line) in content_lines(list)? {
         let fields: Vec<&str> = line.split(',').map(str::trim).collect();
         let [ns, name] = fields.as_slice() else {
@@ -68,6 +97,7 @@ pub(crate) fn parse_euroc(cam_dir: &Path, list: &Path) -> Result<Vec<RawEntry>, 
         if name.is_empty() {
             return Err(malformed(list, n, &line, "empty file name"));
         }
+        check_increasing(&mut previous, ns, list, n, &line)?;
         // Split before converting so the fractional part keeps full precision.
         let timestamp = (ns / NANOS_PER_SECOND) as f64 + (ns % NANOS_PER_SECOND) as f64 / NANOS_PER_SECOND as f64;
         out.push(RawEntry { path: data.join(name), timestamp: Some(timestamp), line: n });
@@ -81,8 +111,10 @@ pub(crate) fn parse_euroc(cam_dir: &Path, list: &Path) -> Result<Vec<RawEntry>, 
 /// and their counts must agree.
 pub(crate) fn list_kitti(image_dir: &Path, times: &Path) -> Result<Vec<RawEntry>, SourceError> {
     let mut stamps = Vec::new();
+    let mut previous = None;
     for (n, line) in content_lines(times)? {
         let t = parse_seconds(&line).ok_or_else(|| malformed(times, n, &line, "expected one timestamp in seconds"))?;
+        check_increasing(&mut previous, t, times, n, &line)?;
         stamps.push((n, t));
     }
     let images = list_images(image_dir)?;

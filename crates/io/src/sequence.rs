@@ -6,6 +6,7 @@ use std::path::{Path, PathBuf};
 use colslam_image::Image;
 
 use crate::detect::{KITTI_CALIB, Layout};
+use crate::error::{FileProblem, check_regular_file};
 use crate::layouts::{RawEntry, list_folder, list_kitti, parse_euroc, parse_tum};
 use crate::{Frame, FrameSource, SourceError, SourceKind, SourceOptions, detect_layout, find_camera_file, image_size};
 
@@ -108,9 +109,26 @@ impl ImageSequence {
             // Invariant: selected_count keeps source_index(k) < total for k < n.
             let Some(RawEntry { path: img, timestamp, line }) = raw.get(source_index).cloned() else { break };
             if let Some(list) = &list
-                && !img.is_file()
+                && let Err(problem) = check_regular_file(&img)
             {
-                return Err(SourceError::MissingListedImage { image: img, list: list.clone(), line });
+                let list = list.clone();
+                return Err(match problem {
+                    FileProblem::Missing => SourceError::MissingListedImage { image: img, list, line },
+                    FileProblem::NotAFile(what) => SourceError::UnusableListedImage {
+                        image: img,
+                        list,
+                        line,
+                        problem: format!("is {what}, not an image file"),
+                        source: None,
+                    },
+                    FileProblem::Unreadable(e) => SourceError::UnusableListedImage {
+                        image: img,
+                        list,
+                        line,
+                        problem: "cannot be examined".into(),
+                        source: Some(e),
+                    },
+                });
             }
             let timestamp = timestamp.unwrap_or_else(|| match opts.fps {
                 Some(fps) => source_index as f64 / fps,
@@ -138,11 +156,29 @@ impl ImageSequence {
         self.entries.iter().map(|e| e.path.as_path())
     }
 
+    /// Adds the list-file context to an image error from the header reader.
+    fn in_context(&self, err: SourceError, e: &Entry) -> SourceError {
+        match err {
+            SourceError::Image { source, context } if context.is_empty() => SourceError::image(source, self.context(e)),
+            other => other,
+        }
+    }
+
     fn context(&self, e: &Entry) -> String {
         match &self.list {
-            Some(list) if e.line > 0 => format!("; listed in {} line {}", list.display(), e.line),
+            Some(list) if e.line > 0 => format!(" (listed in {} line {})", list.display(), e.line),
             _ => String::new(),
         }
+    }
+}
+
+fn size_mismatch(path: &Path, (width, height): (usize, usize), expected: (usize, usize)) -> SourceError {
+    SourceError::SizeMismatch {
+        path: path.to_path_buf(),
+        width,
+        height,
+        expected_width: expected.0,
+        expected_height: expected.1,
     }
 }
 
@@ -154,20 +190,33 @@ impl Iterator for ImageSequence {
         let e = self.entries.get(index)?.clone();
         // A failed frame is consumed too, so a caller may skip it and go on.
         self.cursor += 1;
+        // The header is checked before the file is decoded: a frame of
+        // another size, or one beyond the decoding budget (a few megabytes
+        // of compressed zeros can announce gigabytes of pixels), is refused
+        // without allocating its pixels.
+        let reference = self.first_decoded.or(self.size);
+        let header = match image_size(&e.path) {
+            Ok(size) => size,
+            Err(err) => return Some(Err(self.in_context(err, &e))),
+        };
+        if let Some(reference) = reference
+            && header != reference
+        {
+            return Some(Err(size_mismatch(&e.path, header, reference)));
+        }
+        if let Err(err) = colslam_image::check_size(header.0, header.1, &e.path) {
+            return Some(Err(SourceError::image(err, self.context(&e))));
+        }
         let image = match Image::read(&e.path) {
             Ok(img) => img,
             Err(err) => return Some(Err(SourceError::image(err, self.context(&e)))),
         };
         let (w, h) = (image.width(), image.height());
-        let reference = *self.first_decoded.get_or_insert(self.size.unwrap_or((w, h)));
+        // The decoder agrees with the header parser on every valid file; a
+        // file replaced between the two reads is still caught here.
+        let reference = *self.first_decoded.get_or_insert(reference.unwrap_or((w, h)));
         if (w, h) != reference {
-            return Some(Err(SourceError::SizeMismatch {
-                path: e.path,
-                width: w,
-                height: h,
-                expected_width: reference.0,
-                expected_height: reference.1,
-            }));
+            return Some(Err(size_mismatch(&e.path, (w, h), reference)));
         }
         let name = e.path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
         Some(Ok(Frame { index, source_index: e.source_index, timestamp: e.timestamp, name, image }))

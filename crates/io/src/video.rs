@@ -105,9 +105,7 @@ impl VideoSource {
     /// Probes `path` with ffprobe; ffmpeg itself starts at the first `next()`.
     pub fn open(path: &Path, opts: &SourceOptions) -> Result<Self, SourceError> {
         opts.validate()?;
-        if !path.is_file() {
-            return Err(SourceError::NotFound { path: path.to_path_buf() });
-        }
+        crate::error::check_regular_file(path).map_err(|p| SourceError::not_a_file(path, p))?;
         let info = probe(path, opts)?;
         let gray = match opts.video.color {
             VideoColor::Gray => true,
@@ -543,6 +541,14 @@ fn parse_probe(json: &Value, opts: &SourceOptions) -> Result<VideoInfo, String> 
     if width == 0 || height == 0 {
         return Err("the video stream has no frame size".into());
     }
+    // The same budget as image files: a damaged or hostile header must not
+    // make every `next()` allocate a frame of gigabytes.
+    colslam_image::check_size(width, height, Path::new("")).map_err(|e| match e {
+        colslam_image::ImageError::TooLarge { reason, .. } => {
+            format!("frame size {width}x{height} is too large to decode ({reason})")
+        }
+        other => other.to_string(),
+    })?;
     let text = |k: &str| stream.get(k).and_then(Value::as_str).unwrap_or_default().to_string();
     let fps = parse_rational(&text("avg_frame_rate"))
         .or_else(|| parse_rational(&text("r_frame_rate")))
@@ -613,6 +619,12 @@ mod tests {
         assert!(is_gray_format(&info.pix_fmt));
         let none: Value = serde_json::from_str(r#"{"streams":[]}"#).unwrap();
         assert!(parse_probe(&none, &SourceOptions::default()).unwrap_err().contains("no video stream"));
+        let huge: Value = serde_json::from_str(
+            r#"{"packets":[{"pts":0,"flags":"K_"}],"streams":[{"width":16000,"height":16000,"pix_fmt":"gray16le"}]}"#,
+        )
+        .unwrap();
+        let e = parse_probe(&huge, &SourceOptions::default()).unwrap_err();
+        assert!(e.contains("16000x16000") && e.contains("too large"), "{e}");
     }
 
     #[test]

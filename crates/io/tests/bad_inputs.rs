@@ -6,7 +6,7 @@ mod common;
 use std::path::Path;
 
 use colslam_io::{SourceError, SourceOptions, open_source, probe_source};
-use common::png;
+use common::{chain, png};
 
 fn open_err(path: &Path, opts: &SourceOptions) -> SourceError {
     match open_source(path, opts) {
@@ -59,7 +59,8 @@ fn corrupt_image_names_the_file() {
     assert_eq!(items.len(), 4);
     assert!(items[0].is_ok());
     for (i, name) in [(1, "2.png"), (2, "3.png")] {
-        let msg = items[i].as_ref().unwrap_err().to_string();
+        // The file is named by the cause (the decoding error), printed in the chain.
+        let msg = chain(items[i].as_ref().unwrap_err());
         assert!(msg.contains(name) && msg.contains("rgb.txt line"), "{msg}");
     }
     // A bad frame is consumed; the next good one still reads.
@@ -70,7 +71,7 @@ fn corrupt_image_names_the_file() {
     std::fs::write(dir2.path().join("a.png"), [0x89, b'P', b'N', b'G', 0, 1, 2]).unwrap();
     let mut src = open_source(dir2.path(), &SourceOptions::default()).unwrap();
     assert_eq!(src.image_size(), None);
-    let msg = src.next().unwrap().unwrap_err().to_string();
+    let msg = chain(&src.next().unwrap().unwrap_err());
     assert!(msg.contains("a.png"), "{msg}");
 }
 
@@ -106,6 +107,63 @@ fn malformed_list_lines_name_file_line_and_content() {
     std::fs::write(k.join("times.txt"), "0.0\nzero point one\n").unwrap();
     let msg = open_err(&k, &SourceOptions::default()).to_string();
     assert!(msg.contains("times.txt:2") && msg.contains("zero point one"), "{msg}");
+}
+
+#[test]
+fn existing_paths_of_the_wrong_kind_are_not_called_missing() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    png(&d.join("rgb/1.png"), 1);
+    std::fs::create_dir_all(d.join("rgb/2.png")).unwrap();
+    write_tum(d, &["1.0 rgb/1.png", "2.0 rgb/2.png", "3.0 rgb/3.png"]);
+    let e = open_err(d, &SourceOptions::default());
+    let msg = e.to_string();
+    assert!(matches!(e, SourceError::UnusableListedImage { line: 2, .. }), "{msg}");
+    assert!(msg.contains("2.png") && msg.contains("is a folder") && !msg.contains("does not exist"), "{msg}");
+    std::fs::remove_dir(d.join("rgb/2.png")).unwrap();
+    png(&d.join("rgb/2.png"), 2);
+    let msg = open_err(d, &SourceOptions::default()).to_string();
+    assert!(msg.contains("3.png") && msg.contains("line 3") && msg.contains("does not exist"), "{msg}");
+
+    // A video path that is a folder.
+    let folder = d.join("clip.mp4");
+    std::fs::create_dir(&folder).unwrap();
+    let e = colslam_io::VideoSource::open(&folder, &SourceOptions::default()).unwrap_err();
+    let msg = e.to_string();
+    assert!(matches!(e, SourceError::NotAFile { what: "a folder", .. }), "{msg}");
+    assert!(!msg.contains("no such file"), "{msg}");
+}
+
+#[test]
+fn repeated_or_decreasing_timestamps_name_the_line() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    png(&d.join("rgb/1.png"), 1);
+    png(&d.join("rgb/2.png"), 2);
+    for (lines, bad_line, how) in [
+        (vec!["# c", "1.0 rgb/1.png", "1.0 rgb/2.png"], 3, "repeats the one on line 2"),
+        (vec!["2.0 rgb/1.png", "", "1.5 rgb/2.png"], 3, "is earlier than the one on line 1"),
+    ] {
+        write_tum(d, &lines);
+        let e = open_err(d, &SourceOptions::default());
+        let msg = e.to_string();
+        assert!(matches!(e, SourceError::MalformedLine { .. }), "{msg}");
+        assert!(msg.contains(&format!("rgb.txt:{bad_line}")) && msg.contains(how), "{msg}");
+    }
+
+    let cam = d.join("euroc/cam0");
+    png(&cam.join("data/1.png"), 1);
+    png(&cam.join("data/2.png"), 2);
+    std::fs::write(cam.join("data.csv"), "#timestamp [ns],filename\n200,1.png\n100,2.png\n").unwrap();
+    let msg = open_err(&d.join("euroc"), &SourceOptions::default()).to_string();
+    assert!(msg.contains("data.csv:3") && msg.contains("is earlier than the one on line 2"), "{msg}");
+
+    let k = d.join("kitti");
+    png(&k.join("image_0/000000.png"), 1);
+    png(&k.join("image_0/000001.png"), 2);
+    std::fs::write(k.join("times.txt"), "0.1\n0.1\n").unwrap();
+    let msg = open_err(&k, &SourceOptions::default()).to_string();
+    assert!(msg.contains("times.txt:2") && msg.contains("repeats"), "{msg}");
 }
 
 #[test]

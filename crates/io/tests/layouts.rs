@@ -56,7 +56,7 @@ fn plain_folder_natural_sort_skip_and_limit() {
     assert_eq!(colslam_io::image_size(&d.join("frame3.JPG")).unwrap(), (W, H));
     assert_eq!(colslam_io::image_size(&d.join("frame10.png")).unwrap(), (W, H));
     std::fs::write(d.join("cut.bin"), &common::TINY_JPEG[..40]).unwrap();
-    let msg = colslam_io::image_size(&d.join("cut.bin")).unwrap_err().to_string();
+    let msg = common::chain(&colslam_io::image_size(&d.join("cut.bin")).unwrap_err());
     assert!(msg.contains("cut.bin"), "{msg}");
     std::fs::remove_file(d.join("cut.bin")).unwrap();
 

@@ -7,7 +7,7 @@ use std::path::PathBuf;
 #[derive(Debug, thiserror::Error)]
 pub enum SceneError {
     /// An operating-system error on a file.
-    #[error("{path}: {source}")]
+    #[error("{path}")]
     Io {
         /// The file.
         path: PathBuf,
@@ -80,6 +80,22 @@ pub enum SceneError {
         expected: usize,
         /// Found count.
         got: usize,
+    },
+    /// A camera's values are unusable: a non-finite parameter, a focal
+    /// length that is not positive, a zero size or a principal point far
+    /// outside the image (the cause, [`colslam_camera::Camera::validate`]'s
+    /// error, says which).
+    #[error("{path}: {location}: camera {camera} is invalid")]
+    InvalidCamera {
+        /// The file.
+        path: PathBuf,
+        /// Where in it: "line 4" (text) or "record at byte 12" (binary).
+        location: String,
+        /// The camera.
+        camera: u32,
+        /// What is wrong (boxed: it would more than double the size of
+        /// every `Result` of this crate).
+        source: Box<colslam_camera::CameraError>,
     },
     /// The model in a set of files is inconsistent (dangling references,
     /// duplicate ids, disagreeing links).

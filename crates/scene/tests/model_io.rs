@@ -290,3 +290,46 @@ fn unwritable_names_are_reported() {
     write_model(&rec, dir.path(), ModelFormat::Binary).unwrap();
     assert_eq!(read_model(dir.path()).unwrap().image(ImageId(1)).unwrap().name, "has space.png");
 }
+
+#[test]
+fn unusable_camera_values_are_refused_with_their_location() {
+    // Text: the first camera line (line 4 after the header) with a NaN, then
+    // a negative focal length.
+    let dir = write_fixture(ModelFormat::Text);
+    let d = dir.path();
+    let path = d.join("cameras.txt");
+    for (value, needle) in [("nan", "finite"), ("-500", "focal length must be positive")] {
+        let orig = edit_text(&path, |t| {
+            edit_first_data_line(t, &|_: &str| format!("1 SIMPLE_RADIAL 640 480 {value} 320 240 0"))
+        });
+        let err = expect_error(d, ModelFormat::Text, "cameras.txt");
+        assert!(matches!(err, SceneError::InvalidCamera { camera: 1, .. }), "{err}");
+        let chain = anyhow_like(&err);
+        assert!(chain.contains("cameras.txt: line 4: camera 1") && chain.contains(needle), "{chain}");
+        std::fs::write(&path, orig).unwrap();
+    }
+    read_model(d).unwrap();
+
+    // Binary: the first camera's first parameter (count, id, model, width, height).
+    let dir = write_fixture(ModelFormat::Binary);
+    let d = dir.path();
+    for value in [f64::NAN, f64::INFINITY, -1.0, 0.0] {
+        let orig = patch(&d.join("cameras.bin"), 8 + 4 + 4 + 8 + 8, &value.to_le_bytes());
+        let err = expect_error(d, ModelFormat::Binary, "cameras.bin");
+        assert!(matches!(err, SceneError::InvalidCamera { .. }), "{value}: {err}");
+        assert!(err.to_string().contains("record at byte 8"), "{err}");
+        std::fs::write(d.join("cameras.bin"), orig).unwrap();
+    }
+    read_model(d).unwrap();
+}
+
+/// The error and its causes, joined by ": ".
+fn anyhow_like(e: &dyn std::error::Error) -> String {
+    let mut s = e.to_string();
+    let mut cause = e.source();
+    while let Some(c) = cause {
+        s = format!("{s}: {c}");
+        cause = c.source();
+    }
+    s
+}

@@ -38,7 +38,7 @@ pub enum SfmError {
     #[error(transparent)]
     Scene(#[from] colslam_scene::SceneError),
     /// An error of bundle adjustment.
-    #[error("bundle adjustment: {0}")]
+    #[error("bundle adjustment")]
     Bundle(#[from] colslam_optim::BaError),
     /// An error of a geometric estimator.
     #[error(transparent)]

@@ -3,7 +3,10 @@
 use std::path::PathBuf;
 
 /// Errors of the SLAM pipeline. Conditions a run survives (a frame that
-/// cannot be localised, a lost map) are reported, not raised.
+/// cannot be localised, a lost map) are reported, not raised. A variant with
+/// a cause does not repeat it in its message: the cause is its
+/// [`source`](std::error::Error::source), so print the chain (`{:#}` with
+/// anyhow) to show both once.
 #[derive(Debug, thiserror::Error)]
 pub enum SlamError {
     /// An option is out of range.
@@ -17,7 +20,7 @@ pub enum SlamError {
         reason: String,
     },
     /// The camera is unusable.
-    #[error("camera: {0}")]
+    #[error("camera")]
     Camera(#[from] colslam_camera::CameraError),
     /// A frame's size differs from the camera's.
     #[error("frame {name} is {width}x{height} but the camera is {cam_width}x{cam_height}")]
@@ -34,7 +37,7 @@ pub enum SlamError {
         cam_height: u64,
     },
     /// Feature extraction or matching failed.
-    #[error("features: {0}")]
+    #[error("features")]
     Features(#[from] colslam_features::FeatureError),
     /// The input could not be read.
     #[error(transparent)]
@@ -50,7 +53,7 @@ pub enum SlamError {
     #[error(transparent)]
     Output(#[from] colslam_image::OutputError),
     /// Writing an output failed.
-    #[error("{path}: {source}")]
+    #[error("{path}")]
     Io {
         /// The file or folder.
         path: PathBuf,
@@ -61,7 +64,7 @@ pub enum SlamError {
     #[error(transparent)]
     Trajectory(#[from] colslam_eval::EvalError),
     /// Processing one frame failed.
-    #[error("processing frame {index} ({name}): {source}")]
+    #[error("processing frame {index} ({name})")]
     Frame {
         /// Frame index.
         index: usize,
@@ -78,10 +81,21 @@ pub enum SlamError {
         /// What is wrong with it.
         reason: String,
     },
+    /// No frame of the input could be read (every one failed to decode, or
+    /// the source yielded none), so there is nothing to write.
+    #[error("{input}: no frame could be read ({skipped} skipped); the first failed with: {first_error}")]
+    NoFramesRead {
+        /// The input as given.
+        input: PathBuf,
+        /// Frames that failed and were skipped.
+        skipped: usize,
+        /// The first failure, with its causes.
+        first_error: String,
+    },
     /// The thread that reads and extracts frames ahead of the mapper panicked.
     #[error("the frame reader thread panicked")]
     ReaderPanicked,
     /// Serialising the report failed.
-    #[error("report: {0}")]
+    #[error("report")]
     Json(#[from] serde_json::Error),
 }

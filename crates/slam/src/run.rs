@@ -340,7 +340,17 @@ pub fn run(config: &RunConfig, events: EventSink, mut hooks: RunHooks<'_>) -> Re
     if let Some(f) = hooks.on_start.as_mut() {
         f(&RunStart { camera: resolved.camera.clone(), frames: source.len_hint(), description: source.describe() });
     }
-    let stopped_after = feed(&mut slam, source, &mut hooks)?;
+    let fed = feed(&mut slam, source, &mut hooks)?;
+    // A run that read nothing has nothing to write: empty outputs and a zero
+    // exit status would hide that every frame failed.
+    if fed.processed == 0 && fed.stopped_after.is_none() {
+        return Err(SlamError::NoFramesRead {
+            input: config.input.clone(),
+            skipped: fed.skipped,
+            first_error: fed.first_error.unwrap_or_else(|| "the source yielded none".into()),
+        });
+    }
+    let stopped_after = fed.stopped_after;
     let mut result = slam.finish()?;
     let end = RunEnd { options: &slam_opts, stopped_after, camera_guessed: resolved.guessed, started };
     let report = publish(output, config, &end, &mut result)?;
@@ -398,12 +408,8 @@ fn evaluate(gt: &Path, out: &Path) -> Result<colslam_eval::EvalReport, SlamError
 /// run up to [`PREFETCH_FRAMES`] frames ahead of the mapping on a thread of
 /// their own, so the second core has work while the mapper runs its serial
 /// parts; features are the same as on one thread, so the output is too.
-/// Returns the number of frames processed when a stop was requested.
-fn feed(
-    slam: &mut Slam,
-    mut source: Box<dyn FrameSource>,
-    hooks: &mut RunHooks<'_>,
-) -> Result<Option<usize>, SlamError> {
+/// Returns how many frames were processed and skipped, and whether a stop was requested.
+fn feed(slam: &mut Slam, mut source: Box<dyn FrameSource>, hooks: &mut RunHooks<'_>) -> Result<Fed, SlamError> {
     let frontend = slam.frontend();
     std::thread::scope(|scope| {
         let (tx, rx) = std::sync::mpsc::sync_channel::<Extracted>(PREFETCH_FRAMES);
@@ -418,7 +424,7 @@ fn feed(
                         let data = frontend.process(&frame);
                         Extracted::Frame(Box::new(ExtractedFrame { frame, data, decode, features: t.elapsed() }))
                     }
-                    Err(e) => Extracted::Skipped { error: e.to_string(), decode },
+                    Err(e) => Extracted::Skipped { error: error_chain(&e), decode },
                 };
                 // The receiver is gone once the run stops early.
                 if tx.send(item).is_err() {
@@ -433,22 +439,50 @@ fn feed(
     })
 }
 
+/// What [`feed`] did.
+#[derive(Debug, Default)]
+struct Fed {
+    /// Frames given to the pipeline.
+    processed: usize,
+    /// Frames that could not be read (and were skipped).
+    skipped: usize,
+    /// The first skipped frame's error, with its causes.
+    first_error: Option<String>,
+    /// Frames processed when a stop was requested (`None`: ran to the end).
+    stopped_after: Option<usize>,
+}
+
+/// `e` and its causes, joined by ": ".
+fn error_chain(e: &dyn std::error::Error) -> String {
+    let mut msg = e.to_string();
+    let mut source = e.source();
+    while let Some(s) = source {
+        msg.push_str(": ");
+        msg.push_str(&s.to_string());
+        source = s.source();
+    }
+    msg
+}
+
 /// The mapper's side of [`feed`].
 fn consume(
     slam: &mut Slam,
     rx: &std::sync::mpsc::Receiver<Extracted>,
     hooks: &mut RunHooks<'_>,
-) -> Result<Option<usize>, SlamError> {
-    let mut processed = 0usize;
+) -> Result<Fed, SlamError> {
+    let mut fed = Fed::default();
     for item in rx.iter() {
         if hooks.cancelled() {
-            return Ok(Some(processed));
+            fed.stopped_after = Some(fed.processed);
+            return Ok(fed);
         }
         let ExtractedFrame { frame, data, decode, features } = match item {
             Extracted::Frame(f) => *f,
             Extracted::Skipped { error, decode } => {
                 slam.add_time(Stage::Decode, decode);
                 tracing::warn!("skipping a frame: {error}");
+                fed.skipped += 1;
+                fed.first_error.get_or_insert(error);
                 continue;
             }
         };
@@ -460,12 +494,12 @@ fn consume(
         let in_frame =
             |e: SlamError| SlamError::Frame { index: frame.index, name: frame.name.clone(), source: Box::new(e) };
         slam.process_features(data.map_err(in_frame)?).map_err(in_frame)?;
-        processed += 1;
+        fed.processed += 1;
         if let Some(f) = hooks.after_frame.as_mut() {
             f(slam);
         }
     }
-    Ok(None)
+    Ok(fed)
 }
 
 #[cfg(test)]

@@ -32,7 +32,7 @@ pub enum SynthError {
     #[error("camera: {0}")]
     Camera(String),
     /// A file or folder could not be read or written.
-    #[error("{path}: {source}")]
+    #[error("{path}")]
     Io {
         /// The file or folder.
         path: PathBuf,
@@ -43,7 +43,7 @@ pub enum SynthError {
     #[error(transparent)]
     Image(#[from] colslam_image::ImageError),
     /// `scene.json` could not be encoded.
-    #[error("{path}: cannot encode JSON: {source}")]
+    #[error("{path}: cannot encode JSON")]
     Json {
         /// The file.
         path: PathBuf,

@@ -38,7 +38,7 @@ pub enum ExportError {
     #[error(transparent)]
     Scene(#[from] SceneError),
     /// Writing the trajectory failed.
-    #[error("{path}: cannot write: {source}")]
+    #[error("{path}: cannot write")]
     Io {
         /// The target file.
         path: PathBuf,

@@ -97,7 +97,7 @@ impl ViewerOptions {
 #[derive(Debug, thiserror::Error)]
 pub enum ViewerError {
     /// Binding the address failed (port in use, no permission).
-    #[error("cannot listen on {addr}: {source}")]
+    #[error("cannot listen on {addr}")]
     Bind {
         /// The address asked for.
         addr: SocketAddr,

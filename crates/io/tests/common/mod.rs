@@ -104,3 +104,36 @@ pub fn testsrc_raw(w: usize, h: usize, frames: usize, pix_fmt: &str) -> Vec<u8> 
     assert!(out.status.success());
     out.stdout
 }
+
+/// Writes a real "decompression bomb": a `width`x`height` 16-bit gray PNG of
+/// zeros (16000x16000 compresses to about 2 MB but decodes to 512 MB), rows
+/// streamed through the encoder so making it needs one row of memory.
+pub fn png_bomb(path: &Path, width: u32, height: u32) {
+    use std::io::Write;
+    let file = std::io::BufWriter::new(std::fs::File::create(path).unwrap());
+    let mut enc = png::Encoder::new(file, width, height);
+    enc.set_color(png::ColorType::Grayscale);
+    enc.set_depth(png::BitDepth::Sixteen);
+    enc.set_compression(png::Compression::Fast);
+    enc.set_filter(png::Filter::NoFilter);
+    let mut w = enc.write_header().unwrap();
+    let mut s = w.stream_writer().unwrap();
+    let row = vec![0u8; 2 * width as usize];
+    for _ in 0..height {
+        s.write_all(&row).unwrap();
+    }
+    s.finish().unwrap();
+}
+
+/// An error and its causes joined by ": " (what the binary prints): a
+/// cause is not repeated in its wrapper's message, so tests read the chain.
+pub fn chain(e: &dyn std::error::Error) -> String {
+    let mut s = e.to_string();
+    let mut cause = e.source();
+    while let Some(c) = cause {
+        s.push_str(": ");
+        s.push_str(&c.to_string());
+        cause = c.source();
+    }
+    s
+}

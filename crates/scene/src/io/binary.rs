@@ -188,7 +188,7 @@ pub(super) fn parse_cameras(path: &Path, buf: &[u8]) -> Result<Vec<RawCamera>, S
         for _ in 0..model.num_params() {
             params.push(r.f64("camera parameter")?);
         }
-        let camera = super::make_camera(path, id, model, width, height, params)?;
+        let camera = super::make_camera(path, Loc::Byte(at), id, model, width, height, params)?;
         out.push(RawCamera { loc: Loc::Byte(at), id, camera });
     }
     r.finish()?;

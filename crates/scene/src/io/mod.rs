@@ -318,8 +318,13 @@ pub(crate) fn pose_from_parts(q: [f64; 4], t: [f64; 3]) -> Result<Rigid3, String
 }
 
 /// Makes a camera from file values, mapping model errors to file errors.
+/// The camera is checked with [`colslam_camera::Camera::validate`], the
+/// check every camera reader applies (camera files too), so a NaN or
+/// negative focal length is refused where it is read, with its location,
+/// instead of being carried into a run or written back.
 pub(crate) fn make_camera(
     path: &Path,
+    loc: Loc,
     id: u32,
     model: colslam_camera::CameraModelId,
     width: u64,
@@ -327,13 +332,20 @@ pub(crate) fn make_camera(
     params: Vec<f64>,
 ) -> Result<colslam_camera::Camera, SceneError> {
     let got = params.len();
-    colslam_camera::Camera::new(model, width, height, params).map_err(|_| SceneError::ParamCount {
+    let camera = colslam_camera::Camera::new(model, width, height, params).map_err(|_| SceneError::ParamCount {
         path: path.to_path_buf(),
         camera: id,
         model: model.name(),
         expected: model.num_params(),
         got,
-    })
+    })?;
+    camera.validate().map_err(|source| SceneError::InvalidCamera {
+        path: path.to_path_buf(),
+        location: loc.to_string(),
+        camera: id,
+        source: Box::new(source),
+    })?;
+    Ok(camera)
 }
 
 fn inconsistent(path: &Path, loc: Loc, what: String) -> SceneError {

@@ -100,7 +100,7 @@ pub(super) fn parse_cameras(path: &Path, text: &str) -> Result<Vec<RawCamera>, S
             .into_iter()
             .map(|t| t.parse::<f64>().map_err(|_| line.err(format!("camera parameter {t:?} is not a number"))))
             .collect::<Result<Vec<_>, _>>()?;
-        let camera = super::make_camera(path, id, model, width, height, params)?;
+        let camera = super::make_camera(path, Loc::Line(number), id, model, width, height, params)?;
         out.push(RawCamera { loc: Loc::Line(number), id, camera });
     }
     Ok(out)

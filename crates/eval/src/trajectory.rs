@@ -138,6 +138,11 @@ impl Trajectory {
             if norm <= MIN_QUAT_NORM {
                 return Err(err(format!("quaternion ({qx} {qy} {qz} {qw}) has zero norm")));
             }
+            // Finite components can still overflow the norm (1e308): normalising
+            // by an infinite norm would give the zero quaternion.
+            if !norm.is_finite() {
+                return Err(err(format!("quaternion ({qx} {qy} {qz} {qw}) is too large to normalise")));
+            }
             let rotation =
                 if (norm - 1.0).abs() <= UNIT_NORM_TOL { Quat::new_unchecked(q) } else { Quat::new_normalize(q) };
             traj.stamps.push(t);
@@ -227,6 +232,8 @@ mod tests {
             ("1 0 0 0 0 0 0 nan\n", "field 8 (qw) is not finite"),
             ("inf 0 0 0 0 0 0 1\n", "field 1 (timestamp) is not finite"),
             ("1 0 0 0 0 0 0 0\n", "zero norm"),
+            // Found by fuzzing: the norm overflowed and normalising gave the zero quaternion.
+            ("1 0 0 0 0.6 0.5 -0.3 -1e308\n", "too large to normalise"),
         ];
         for (bad, expect) in cases {
             let text = format!("# c\n{good}\n{bad}");

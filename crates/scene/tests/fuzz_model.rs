@@ -7,7 +7,9 @@ mod common;
 
 use colslam_camera::{Camera, CameraModelId};
 use colslam_geometry::{Quat, Rigid3, Vec2, Vec3};
-use colslam_scene::{CameraId, Image, ImageId, ModelFormat, Reconstruction, TrackElement, read_model_format, write_model};
+use colslam_scene::{
+    CameraId, Image, ImageId, ModelFormat, Reconstruction, TrackElement, read_model_format, write_model,
+};
 use colslam_testutil::fuzz::{Corpus, Scratch, fuzz};
 
 colslam_testutil::fuzz_allocator!();
@@ -27,7 +29,8 @@ fn tiny_model() -> Reconstruction {
     let cam = Camera::new(CameraModelId::SimpleRadial, 64, 48, vec![50.0, 32.0, 24.0, 0.01]).unwrap();
     rec.add_camera_with_id(CameraId(1), cam).unwrap();
     for (k, id) in [ImageId(1), ImageId(2)].into_iter().enumerate() {
-        let mut img = Image::new(id, format!("im{k}.png"), CameraId(1), vec![Vec2::new(10.0, 12.0), Vec2::new(30.5, 20.25)]);
+        let mut img =
+            Image::new(id, format!("im{k}.png"), CameraId(1), vec![Vec2::new(10.0, 12.0), Vec2::new(30.5, 20.25)]);
         img.cam_from_world = Rigid3::new(Quat::identity(), Vec3::new(k as f64 * 0.1, 0.0, 0.0));
         img.registered = true;
         rec.add_image(img).unwrap();

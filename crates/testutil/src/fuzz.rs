@@ -28,6 +28,8 @@
 //!   take the machine's memory; requests between [`MEMORY_LIMIT`] and the
 //!   cap are served (untouched pages cost nothing) and reported after the
 //!   input with the input saved.
+//! * An input over the time limit is run a second time and fails only if it
+//!   is slow again: on a shared machine a process may wait for a core.
 //! * A watchdog thread aborts the process, after saving the input, when one
 //!   input runs longer than [`HANG_ABORT`] (a hang would never return to the
 //!   per-input time check).
@@ -611,6 +613,10 @@ pub struct FuzzReport {
     pub max_alloc_bytes: usize,
     /// Whether memory was measured (the counting allocator is installed).
     pub memory_checked: bool,
+    /// Growth of this thread's live bytes over the whole run: what the
+    /// parser (or the closure's state) kept, a leak when it grows with the
+    /// number of inputs.
+    pub retained_bytes: isize,
     /// Wall time of the whole run.
     pub wall: Duration,
 }
@@ -631,9 +637,10 @@ impl fmt::Display for FuzzReport {
         if self.memory_checked {
             write!(
                 f,
-                "peak {:.1} KiB, largest allocation {:.1} KiB per input; ",
+                "peak {:.1} KiB, largest allocation {:.1} KiB per input, {:.1} KiB retained after the run; ",
                 self.max_peak_bytes as f64 / 1024.0,
-                self.max_alloc_bytes as f64 / 1024.0
+                self.max_alloc_bytes as f64 / 1024.0,
+                self.retained_bytes as f64 / 1024.0
             )?;
         } else {
             write!(f, "memory not measured (no counting allocator); ")?;
@@ -763,23 +770,34 @@ pub fn fuzz<T, E: fmt::Display>(
         max_peak_bytes: 0,
         max_alloc_bytes: 0,
         memory_checked,
+        retained_bytes: 0,
         wall: Duration::ZERO,
     };
+    let live_at_start = LIVE.with(Cell::get);
     let run_start = Instant::now();
     for index in range {
         let input = Arc::new(generate(corpus, seed, index));
-        watchdog.set(Some(Running { index, started: Instant::now(), input: input.clone() }));
-        RUNNING.with(|r| r.set(Some((seed, index))));
-        let started = Instant::now();
-        let (outcome, mem) = measure_memory(|| {
-            std::panic::catch_unwind(AssertUnwindSafe(|| match target(&input) {
-                Ok(_) => Ok(()),
-                Err(e) => Err(e.to_string()),
-            }))
-        });
-        let elapsed = started.elapsed();
-        RUNNING.with(|r| r.set(None));
-        watchdog.set(None);
+        let mut run = || {
+            watchdog.set(Some(Running { index, started: Instant::now(), input: input.clone() }));
+            RUNNING.with(|r| r.set(Some((seed, index))));
+            let started = Instant::now();
+            let (outcome, mem) = measure_memory(|| {
+                std::panic::catch_unwind(AssertUnwindSafe(|| match target(&input) {
+                    Ok(_) => Ok(()),
+                    Err(e) => Err(e.to_string()),
+                }))
+            });
+            let elapsed = started.elapsed();
+            RUNNING.with(|r| r.set(None));
+            watchdog.set(None);
+            (outcome, mem, elapsed)
+        };
+        let (outcome, mem, mut elapsed) = run();
+        if elapsed > TIME_LIMIT && outcome.is_ok() {
+            // On a shared machine a process can wait for a core for a long
+            // time; a slow parser is slow again on the same input.
+            elapsed = elapsed.min(run().2);
+        }
 
         let fail = |why: String| -> ! {
             let dir = save_input(name, &corpus.names, seed, index, &input);
@@ -799,7 +817,7 @@ pub fn fuzz<T, E: fmt::Display>(
             }
         };
         if elapsed > TIME_LIMIT {
-            fail(format!("took {elapsed:?} (limit {TIME_LIMIT:?})"));
+            fail(format!("took {elapsed:?} twice (limit {TIME_LIMIT:?})"));
         }
         if mem.peak > MEMORY_LIMIT || mem.largest > MEMORY_LIMIT {
             fail(format!(
@@ -819,6 +837,12 @@ pub fn fuzz<T, E: fmt::Display>(
     }
     drop(watchdog);
     report.wall = run_start.elapsed();
+    report.retained_bytes = LIVE.with(Cell::get).saturating_sub(live_at_start);
+    assert!(
+        report.retained_bytes <= MEMORY_LIMIT as isize,
+        "fuzz {name}: {} bytes stayed allocated after the run (a leak?): {report}",
+        report.retained_bytes
+    );
     eprintln!("{report}");
     report
 }
@@ -844,10 +868,7 @@ impl Scratch {
     /// helper).
     pub fn new() -> Self {
         let builder = tempfile::Builder::new().prefix("colslam-fuzz-").clone();
-        let dir = builder
-            .tempdir_in(MEMORY_TMP)
-            .or_else(|_| builder.tempdir())
-            .expect("create a temporary folder");
+        let dir = builder.tempdir_in(MEMORY_TMP).or_else(|_| builder.tempdir()).expect("create a temporary folder");
         Self { dir, written: HashMap::new() }
     }
 
@@ -928,9 +949,8 @@ mod tests {
     #[test]
     fn counts_accepted_and_rejected() {
         let c = corpus();
-        let r = fuzz("selftest", &c, 300, |parts| {
-            std::str::from_utf8(&parts[0]).map(str::len).map_err(|e| e.to_string())
-        });
+        let r =
+            fuzz("selftest", &c, 300, |parts| std::str::from_utf8(&parts[0]).map(str::len).map_err(|e| e.to_string()));
         assert_eq!(r.inputs, 300);
         assert_eq!(r.accepted + r.rejected, 300);
         assert!(r.accepted > 0 && r.rejected > 0, "{r}");

@@ -543,10 +543,17 @@ fn mutate_once(rng: &mut SplitMix64, corpus: &Corpus, input: &mut [Vec<u8>], p: 
                 let most = if rng.below(8) == 0 { 2000 } else { 3 };
                 let times = 1 + rng.below(most);
                 let at = line_at(data, rng.below(len)).0;
-                let mut rep = Vec::with_capacity(line.len() * times);
+                // Only what survives the final truncation is built (a long
+                // line repeated 2,000 times would take gigabytes).
+                let room = MAX_PART_LEN.saturating_sub(at);
+                let mut rep = Vec::with_capacity((line.len() * times).min(room));
                 for _ in 0..times {
+                    if rep.len() >= room {
+                        break;
+                    }
                     rep.extend_from_slice(&line);
                 }
+                rep.truncate(room);
                 data.splice(at..at, rep);
             }
         }
@@ -943,6 +950,18 @@ mod tests {
             let x = generate(&c, 1, i);
             assert_eq!(x.len(), 2);
             assert!(x.iter().all(|p| p.len() <= MAX_PART_LEN));
+        }
+    }
+
+    #[test]
+    fn generating_an_input_takes_memory_bounded_by_the_part_limit() {
+        // One long line (no newline): repeating it must not build gigabytes.
+        let c = Corpus::single("a").sample(vec![b'x'; MAX_PART_LEN / 2]).sample(b"1 2\n".to_vec());
+        assert!(counting_alloc_installed());
+        for i in 0..3000 {
+            let (x, mem) = measure_memory(|| generate(&c, 3, i));
+            assert!(x[0].len() <= MAX_PART_LEN);
+            assert!(mem.largest <= 4 * MAX_PART_LEN, "input {i}: {mem:?}");
         }
     }
 

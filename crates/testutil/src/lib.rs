@@ -151,6 +151,9 @@ pub fn run_python(py: &Path, args: &[&str]) -> String {
 }
 
 #[cfg(test)]
+crate::fuzz_allocator!();
+
+#[cfg(test)]
 mod tests {
     use super::*;
 

@@ -143,6 +143,11 @@ impl Trajectory {
             if norm <= MIN_QUAT_NORM {
                 return Err(err(format!("quaternion ({qx} {qy} {qz} {qw}) has zero norm")));
             }
+            // Finite components can still overflow the norm (1e308): normalising
+            // by an infinite norm would give the zero quaternion.
+            if !norm.is_finite() {
+                return Err(err(format!("quaternion ({qx} {qy} {qz} {qw}) is too large to normalise")));
+            }
             let rotation =
                 if (norm - 1.0).abs() <= UNIT_NORM_TOL { Quat::new_unchecked(q) } else { Quat::new_normalize(q) };
             if let Some((prev, prev_line)) = previous
@@ -243,6 +248,8 @@ mod tests {
             ("1 0 0 0 0 0 0 0\n", "zero norm"),
             ("1 0 0 0 0 0 0 1\n", "timestamp 1 repeats the one on line 2"),
             ("0.5 0 0 0 0 0 0 1\n", "timestamp 0.5 is earlier than the one on line 2"),
+            // Found by fuzzing: the norm overflowed and normalising gave the zero quaternion.
+            ("1 0 0 0 0.6 0.5 -0.3 -1e308\n", "too large to normalise"),
         ];
         for (bad, expect) in cases {
             let text = format!("# c\n{good}\n{bad}");

@@ -15,9 +15,13 @@
 //! wrappers [`data_dir`], [`dataset`] and [`peer_python`] skip with a message
 //! when something is absent, and fail in CI (`CI=true`) instead. Panicking is
 //! the right failure mode for those: they run only inside tests.
+//!
+//! [`fuzz`] is the parsers' mutation fuzzer (see its docs).
 
 use std::path::{Path, PathBuf};
 use std::process::Command;
+
+pub mod fuzz;
 
 /// The workspace root (two levels above this crate).
 pub fn workspace_root() -> PathBuf {
@@ -145,6 +149,9 @@ pub fn run_python(py: &Path, args: &[&str]) -> String {
     assert!(out.status.success(), "python {:?} failed:\n{}", args, String::from_utf8_lossy(&out.stderr));
     String::from_utf8_lossy(&out.stdout).into_owned()
 }
+
+#[cfg(test)]
+crate::fuzz_allocator!();
 
 #[cfg(test)]
 mod tests {

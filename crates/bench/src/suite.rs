@@ -260,7 +260,9 @@ fn run_colslam(ctx: &Ctx, seq: &Sequence, setting: &str, extra: &[String], run: 
         cmd.args(["--threads", &t.to_string()]);
     }
     cmd.args(extra);
-    let log = dir.join("log.txt");
+    // Beside the run's folder, not in it: `colslam run` replaces its output
+    // folder as a whole and refuses one holding files that are not its own.
+    let log = dir.with_extension("log");
     let m = match run_measured(&mut cmd, &log, ctx.timeout) {
         Ok(m) => m,
         Err(e) => {

@@ -77,7 +77,7 @@ pub enum OutputError {
         holder: String,
     },
     /// A file-system operation failed.
-    #[error("{path}: cannot write the output: {action}: {source}")]
+    #[error("{path}: cannot write the output: {action}")]
     Io {
         /// The output.
         path: PathBuf,

@@ -37,7 +37,7 @@ fn fuzz_tum_rgb_txt() {
             "# color images\n# file: 'rgbd_dataset_freiburg1_xyz.bag'\n# timestamp filename\n\
              1305031102.175304 rgb/1.png\n1305031102.211214 rgb/2.png\n1305031102.243211 rgb/3.png\n",
         )
-        .sample("1.0 rgb/3.png\r\n0.5 rgb/1.png\r\n")
+        .sample("0.5 rgb/3.png\r\n1.0 rgb/1.png\r\n")
         .sample("  0 rgb/2.png  \n\n# end\n")
         .words(LIST_WORDS);
     fuzz("tum-rgb.txt", &corpus, CI_ITERS, |parts| {
@@ -56,7 +56,7 @@ fn fuzz_euroc_data_csv() {
     let lines: Vec<String> = stamps.iter().map(|s| format!("{s},{s}.png\n")).collect();
     let corpus = Corpus::single("data.csv")
         .sample(format!("#timestamp [ns],filename\n{}", lines.concat()))
-        .sample(format!("{}\r\n{}", lines[2].trim_end(), lines[0]))
+        .sample(format!("{}\r\n{}", lines[0].trim_end(), lines[2]))
         .sample(format!("  {} , {}.png  \n", stamps[1], stamps[1]))
         .words(stamps)
         .words(LIST_WORDS);

@@ -99,3 +99,39 @@ pub enum SlamError {
     #[error("report")]
     Json(#[from] serde_json::Error),
 }
+
+/// `e` and its sources, joined by ": " (a source whose text already ends
+/// the message is left out): the one line a front end shows for an error,
+/// since library errors leave their cause to `source()`.
+pub fn error_chain(e: &dyn std::error::Error) -> String {
+    let mut msg = e.to_string();
+    let mut source = e.source();
+    while let Some(s) = source {
+        let text = s.to_string();
+        if !msg.ends_with(&text) {
+            msg.push_str(": ");
+            msg.push_str(&text);
+        }
+        source = s.source();
+    }
+    msg
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn failure_message_names_the_causes() {
+        let io = std::io::Error::new(std::io::ErrorKind::PermissionDenied, "denied");
+        let e = SlamError::Io { path: "out".into(), source: io };
+        assert_eq!(error_chain(&e), "out: denied", "a source already in the message is not repeated");
+        let e = SlamError::Frame { index: 3, name: "a.png".into(), source: Box::new(e) };
+        assert_eq!(error_chain(&e), "processing frame 3 (a.png): out: denied");
+        #[derive(Debug, thiserror::Error)]
+        #[error("outer")]
+        struct Outer(#[source] std::io::Error);
+        let e = Outer(std::io::Error::other("inner"));
+        assert_eq!(error_chain(&e), "outer: inner", "a source not in the message is appended");
+    }
+}

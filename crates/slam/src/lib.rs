@@ -37,7 +37,7 @@ pub mod pipeline;
 pub mod run;
 pub mod timing;
 
-pub use error::SlamError;
+pub use error::{SlamError, error_chain};
 pub use events::{EventPoint, EventSink, SlamEvent};
 pub use frame::{FrameData, FrameId, FramePose, FrameRecord};
 pub use mapper::rolling_shutter;

@@ -424,7 +424,7 @@ fn feed(slam: &mut Slam, mut source: Box<dyn FrameSource>, hooks: &mut RunHooks<
                         let data = frontend.process(&frame);
                         Extracted::Frame(Box::new(ExtractedFrame { frame, data, decode, features: t.elapsed() }))
                     }
-                    Err(e) => Extracted::Skipped { error: error_chain(&e), decode },
+                    Err(e) => Extracted::Skipped { error: crate::error::error_chain(&e), decode },
                 };
                 // The receiver is gone once the run stops early.
                 if tx.send(item).is_err() {
@@ -452,17 +452,6 @@ struct Fed {
     stopped_after: Option<usize>,
 }
 
-/// `e` and its causes, joined by ": ".
-fn error_chain(e: &dyn std::error::Error) -> String {
-    let mut msg = e.to_string();
-    let mut source = e.source();
-    while let Some(s) = source {
-        msg.push_str(": ");
-        msg.push_str(&s.to_string());
-        source = s.source();
-    }
-    msg
-}
 
 /// The mapper's side of [`feed`].
 fn consume(

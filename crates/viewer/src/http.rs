@@ -817,7 +817,7 @@ fn picture(s: &mut TcpStream, shared: &Shared, keyframe: bool) -> std::io::Resul
     let name = if keyframe { "keyframe.png" } else { "frame.png" };
     match pic.image.encode_png(std::path::Path::new(name)) {
         Ok(png) => respond(s, 200, "image/png", &png),
-        Err(e) => respond_error(s, 500, &e.to_string()),
+        Err(e) => respond_error(s, 500, &colslam_slam::error_chain(&e)),
     }
 }
 
@@ -937,6 +937,6 @@ fn api_export(s: &mut TcpStream, req: &Request, shared: &Shared) -> std::io::Res
     };
     match export_reconstruction(&rec, &path, format) {
         Ok(()) => respond_json(s, 200, &json!({ "ok": true, "path": path.display().to_string() })),
-        Err(e) => respond_error(s, 400, &format!("export failed: {e}")),
+        Err(e) => respond_error(s, 400, &format!("export failed: {}", colslam_slam::error_chain(&e))),
     }
 }

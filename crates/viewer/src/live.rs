@@ -19,6 +19,7 @@
 //! A caller adds hooks of its own to a live run (the binary's progress bar)
 //! with [`run_live`]'s `extra` ([`RunHooks::then`] combines them).
 
+use colslam_slam::error_chain;
 use crate::{
     FrameUpdate, KeyframeUpdate, MapDelta, RunController, RunSettings, RunState, Summary, VIEW_MAX_WIDTH, ViewerCamera,
     ViewerHandle, ViewerPoint, ViewerUpdate, downscale_for_view,
@@ -459,21 +460,6 @@ impl RunShared {
     }
 }
 
-/// `e` and its sources, joined by ": " (a source whose text already ends
-/// the message is left out).
-fn error_chain(e: &dyn std::error::Error) -> String {
-    let mut msg = e.to_string();
-    let mut source = e.source();
-    while let Some(s) = source {
-        let text = s.to_string();
-        if !msg.ends_with(&text) {
-            msg.push_str(": ");
-            msg.push_str(&text);
-        }
-        source = s.source();
-    }
-    msg
-}
 
 /// Runs the pipeline with the viewer following live: resets the page, feeds
 /// frames, keyframes, map increments and the summary through the bridge
@@ -608,7 +594,7 @@ impl ViewController {
 /// library's options (the output may not be a file).
 pub fn run_args_from_settings(base: &RunOptions, s: &RunSettings) -> Result<RunConfig, String> {
     let config = s.to_config(base)?;
-    config.validate().map_err(|e| e.to_string())?;
+    config.validate().map_err(|e| error_chain(&e))?;
     Ok(config)
 }
 
@@ -619,7 +605,7 @@ impl RunController for ViewController {
         // once rather than as a failed run.
         args.check_output().map_err(|e| error_chain(&e))?;
         let src = args.options.source();
-        colslam_io::probe_source(&args.input, &src).map_err(|e| e.to_string())?;
+        colslam_io::probe_source(&args.input, &src).map_err(|e| error_chain(&e))?;
         if !self.shared.try_begin() {
             return Err("a run is already in progress; stop it first".into());
         }
@@ -655,7 +641,7 @@ impl RunController for ViewController {
 
     fn max_frames_for(&self, input: &Path, skip: usize) -> Result<usize, String> {
         let opts = colslam_io::SourceOptions { skip: skip.max(1), ..Default::default() };
-        let info = colslam_io::probe_source(input, &opts).map_err(|e| e.to_string())?;
+        let info = colslam_io::probe_source(input, &opts).map_err(|e| error_chain(&e))?;
         info.frames.ok_or_else(|| format!("{}: the number of frames is not known in advance", input.display()))
     }
 
@@ -900,17 +886,4 @@ mod tests {
         assert!(slot.get().is_none());
     }
 
-    #[test]
-    fn failure_message_names_the_causes() {
-        let io = std::io::Error::new(std::io::ErrorKind::PermissionDenied, "denied");
-        let e = SlamError::Io { path: "out".into(), source: io };
-        assert_eq!(error_chain(&e), "out: denied", "a source already in the message is not repeated");
-        let e = SlamError::Frame { index: 3, name: "a.png".into(), source: Box::new(e) };
-        assert_eq!(error_chain(&e), "processing frame 3 (a.png): out: denied");
-        #[derive(Debug, thiserror::Error)]
-        #[error("outer")]
-        struct Outer(#[source] std::io::Error);
-        let e = Outer(std::io::Error::other("inner"));
-        assert_eq!(error_chain(&e), "outer: inner", "a source not in the message is appended");
-    }
 }

@@ -44,5 +44,5 @@ pub use mapper::rolling_shutter;
 pub use options::{FeatureKind, MatcherKind, SlamOptions};
 pub use output::{OutputFormat, RUN_OUTPUT_NAMES, RunReport, begin_run_output, write_outputs, write_report};
 pub use pipeline::{MapResult, RunStats, Slam, SlamResult};
-pub use run::{CameraOptions, InputOptions, RunConfig, RunHooks, RunOptions, RunOutput, RunStart};
+pub use run::{CameraOptions, CameraSource, InputOptions, RunConfig, RunHooks, RunOptions, RunOutput, RunStart};
 pub use timing::{Stage, StageTimings};

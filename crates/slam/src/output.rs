@@ -15,6 +15,8 @@ use crate::frame::{FrameId, FramePose};
 use crate::options::SlamOptions;
 use crate::pipeline::{MapResult, SlamResult};
 use crate::timing::StageTimings;
+use colslam_camera::PixelConvention;
+use colslam_camera::file::to_yaml_string;
 use colslam_eval::trajectory::Trajectory;
 use colslam_image::OutputDir;
 use colslam_scene::{MODEL_FILE_NAMES, ModelFormat, write_model_files, write_ply};
@@ -92,6 +94,9 @@ pub struct RunReport {
     /// Whether the camera's focal length was guessed (no calibration given):
     /// intrinsics were then refined by bundle adjustment.
     pub camera_guessed: bool,
+    /// Where the camera came from (file, preset, file beside the input,
+    /// `--focal`, guessed); the camera the run ended with is `camera.yaml`.
+    pub camera_source: Option<crate::run::CameraSource>,
     /// Frames processed before a stop was requested, when one was.
     pub stopped_after: Option<usize>,
     /// The evaluation against ground truth (`--gt`), as printed.
@@ -146,8 +151,8 @@ fn trajectory(poses: &[FramePose], keyframes_only: bool) -> Trajectory {
 
 /// The files and folders of a run's output folder besides the model files
 /// ([`MODEL_FILE_NAMES`]).
-const RUN_FILE_NAMES: [&str; 6] =
-    ["maps", "trajectory.tum", "keyframes.tum", "points.ply", "report.json", "trajectory.eval.png"];
+const RUN_FILE_NAMES: [&str; 7] =
+    ["maps", "trajectory.tum", "keyframes.tum", "points.ply", "camera.yaml", "report.json", "trajectory.eval.png"];
 
 /// The names a run's output folder holds: what [`begin_run_output`] accepts
 /// to replace.
@@ -204,6 +209,14 @@ pub fn write_outputs(
         Trajectory::default().write_tum(&out.join("trajectory.tum"))?;
         Trajectory::default().write_tum(&out.join("keyframes.tum"))?;
     }
+    if let Some(camera) = result.maps.first().and_then(|m| m.map.camera().ok()) {
+        // The camera the run ended with (refined when intrinsics were), as a
+        // camera file that `--camera` reads back: OpenCV's pixel convention.
+        let opencv = camera.convert_pixel_convention(PixelConvention::Colmap, PixelConvention::OpenCv);
+        let path = out.join("camera.yaml");
+        colslam_image::write_atomic(&path, to_yaml_string(&opencv).as_bytes())
+            .map_err(|source| SlamError::Io { path, source })?;
+    }
     let maps: Vec<MapSummary> = result.maps.iter().map(summarize).collect();
     let first = maps.first();
     let camera = result
@@ -242,6 +255,7 @@ pub fn write_outputs(
         camera,
         options: opts.clone(),
         camera_guessed: false,
+        camera_source: None,
         stopped_after: None,
         eval: None,
     })

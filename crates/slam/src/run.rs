@@ -181,14 +181,46 @@ fn preset_camera(name: &str) -> Result<Camera, SlamError> {
     })
 }
 
-/// The camera of a run and whether its focal length is a guess.
+/// Where a run's camera came from (reported in `report.json`).
+#[derive(Debug, Clone, PartialEq, Eq, serde::Serialize)]
+#[serde(tag = "kind", rename_all = "snake_case")]
+pub enum CameraSource {
+    /// `--camera FILE`.
+    File {
+        /// The file.
+        path: PathBuf,
+    },
+    /// `--preset NAME`.
+    Preset {
+        /// The preset.
+        name: String,
+    },
+    /// A camera file found beside the input.
+    BesideInput {
+        /// The file.
+        path: PathBuf,
+    },
+    /// `--focal F` with the principal point at the centre.
+    Focal,
+    /// No calibration: the focal length is [`DEFAULT_FOCAL_FACTOR`] times the
+    /// larger image side, refined by bundle adjustment.
+    Guessed,
+}
+
+/// The camera of a run and where it came from.
 #[derive(Debug, Clone)]
 pub struct ResolvedCamera {
     /// The calibration (OpenCV pixel convention, as camera files give it).
     pub camera: Camera,
-    /// No calibration was given: the focal length is
-    /// [`DEFAULT_FOCAL_FACTOR`] times the larger image side.
-    pub guessed: bool,
+    /// Where it came from.
+    pub source: CameraSource,
+}
+
+impl ResolvedCamera {
+    /// No calibration was given: the focal length is a guess.
+    pub fn guessed(&self) -> bool {
+        self.source == CameraSource::Guessed
+    }
 }
 
 /// The camera `opts` select for `source`: a camera file, a preset, a camera
@@ -200,17 +232,21 @@ pub fn resolve_camera(
     source: &dyn FrameSource,
 ) -> Result<ResolvedCamera, SlamError> {
     if let Some(path) = &opts.camera {
-        return Ok(ResolvedCamera { camera: colslam_camera::file::read_camera_file(path)?, guessed: false });
+        let camera = colslam_camera::file::read_camera_file(path)?;
+        return Ok(ResolvedCamera { camera, source: CameraSource::File { path: path.clone() } });
     }
     if let Some(name) = &opts.preset {
-        return Ok(ResolvedCamera { camera: preset_camera(name)?, guessed: false });
+        return Ok(ResolvedCamera {
+            camera: preset_camera(name)?,
+            source: CameraSource::Preset { name: name.clone() },
+        });
     }
     if opts.focal.is_none()
         && let Some(path) = source.camera_file()
     {
         let camera = colslam_camera::file::read_camera_file(&path)?;
         tracing::info!("camera from {}", path.display());
-        return Ok(ResolvedCamera { camera, guessed: false });
+        return Ok(ResolvedCamera { camera, source: CameraSource::BesideInput { path } });
     }
     let Some((w, h)) = source.image_size() else {
         let reason = "cannot tell the image size; give --camera or --preset".to_string();
@@ -228,7 +264,7 @@ pub fn resolve_camera(
     } else {
         tracing::info!("camera: focal {f:.1} px as given, principal point at the centre");
     }
-    Ok(ResolvedCamera { camera, guessed })
+    Ok(ResolvedCamera { camera, source: if guessed { CameraSource::Guessed } else { CameraSource::Focal } })
 }
 
 /// What the driver knows before the first frame.
@@ -331,7 +367,7 @@ pub fn run(config: &RunConfig, events: EventSink, mut hooks: RunHooks<'_>) -> Re
     let resolved = resolve_camera(&config.camera, &config.input, source.as_ref())?;
     let mut slam_opts = opts.slam.clone();
     // A guessed focal length is only a prior: bundle adjustment refines it.
-    slam_opts.refine.refine_intrinsics |= resolved.guessed;
+    slam_opts.refine.refine_intrinsics |= resolved.guessed();
     let mut slam = Slam::new(slam_opts.clone(), &resolved.camera, events)?;
     if let Some(gt) = &config.gt {
         slam.set_debug_ground_truth(colslam_eval::trajectory::Trajectory::read_tum(gt)?);
@@ -352,7 +388,7 @@ pub fn run(config: &RunConfig, events: EventSink, mut hooks: RunHooks<'_>) -> Re
     }
     let stopped_after = fed.stopped_after;
     let mut result = slam.finish()?;
-    let end = RunEnd { options: &slam_opts, stopped_after, camera_guessed: resolved.guessed, started };
+    let end = RunEnd { options: &slam_opts, stopped_after, camera_source: resolved.source.clone(), started };
     let report = publish(output, config, &end, &mut result)?;
     Ok(RunOutput { report, result })
 }
@@ -361,7 +397,7 @@ pub fn run(config: &RunConfig, events: EventSink, mut hooks: RunHooks<'_>) -> Re
 struct RunEnd<'a> {
     options: &'a SlamOptions,
     stopped_after: Option<usize>,
-    camera_guessed: bool,
+    camera_source: CameraSource,
     started: Instant,
 }
 
@@ -386,7 +422,8 @@ fn publish(
         report.notes.push(format!("stopped on request after {n} frames"));
     }
     report.stopped_after = end.stopped_after;
-    report.camera_guessed = end.camera_guessed;
+    report.camera_guessed = end.camera_source == CameraSource::Guessed;
+    report.camera_source = Some(end.camera_source.clone());
     report.timings_s = result.timings.clone();
     report.wall_time_s = end.started.elapsed().as_secs_f64();
     report.ms_per_frame = if report.frames > 0 { 1e3 * report.wall_time_s / report.frames as f64 } else { 0.0 };
@@ -451,7 +488,6 @@ struct Fed {
     /// Frames processed when a stop was requested (`None`: ran to the end).
     stopped_after: Option<usize>,
 }
-
 
 /// The mapper's side of [`feed`].
 fn consume(
@@ -583,7 +619,12 @@ mod tests {
         // The output steps of the driver (what `run` does after its last frame).
         let opts = a.options.slam.clone();
         let publish_run = |c: &RunConfig, r: &mut SlamResult| -> Result<RunReport, SlamError> {
-            let end = RunEnd { options: &opts, stopped_after: None, camera_guessed: false, started: Instant::now() };
+            let end = RunEnd {
+                options: &opts,
+                stopped_after: None,
+                camera_source: CameraSource::Focal,
+                started: Instant::now(),
+            };
             publish(begin_run_output(&c.output)?, c, &end, r)
         };
         let mut runs = [(&a, &mut first.result, 20), (&b, &mut second.result, 14)];
@@ -620,6 +661,29 @@ mod tests {
         fault::kill_at(None);
         assert!(matches!(e, Err(SlamError::Output(OutputError::Io { .. }))), "{e:?}");
         assert_eq!(frames.get(), 0, "the output is checked before the first frame");
+    }
+
+    #[test]
+    fn the_written_camera_file_reproduces_the_run() {
+        let root = tempfile::tempdir().unwrap_or_else(|e| panic!("tempdir: {e}"));
+        let input = sequence(root.path(), 20);
+        let (first, second) = (root.path().join("first"), root.path().join("second"));
+        let a = run(&config(&input, &first, 20, false), EventSink::none(), RunHooks::default())
+            .unwrap_or_else(|e| panic!("run: {e}"));
+        assert_eq!(a.report.camera_source, Some(CameraSource::Focal));
+        let written = first.join("camera.yaml");
+        let camera = colslam_camera::file::read_camera_file(&written).unwrap_or_else(|e| panic!("camera.yaml: {e}"));
+        // The pinhole of `--focal 131.25` at the centre, in OpenCV's convention.
+        assert_eq!((camera.width, camera.height), (160, 120));
+        assert_eq!(camera.params, [131.25, 79.5, 59.5]);
+        let mut c = config(&input, &second, 20, false);
+        c.camera = CameraOptions { camera: Some(written.clone()), ..CameraOptions::default() };
+        let b = run(&c, EventSink::none(), RunHooks::default()).unwrap_or_else(|e| panic!("run: {e}"));
+        assert_eq!(b.report.camera_source, Some(CameraSource::File { path: written }));
+        for name in ["trajectory.tum", "cameras.bin", "images.bin", "points3D.bin", "camera.yaml"] {
+            let read = |dir: &Path| std::fs::read(dir.join(name)).unwrap_or_else(|e| panic!("{name}: {e}"));
+            assert!(read(&first) == read(&second), "{name} differs when the written camera is given back");
+        }
     }
 
     #[test]

@@ -19,7 +19,6 @@
 //! A caller adds hooks of its own to a live run (the binary's progress bar)
 //! with [`run_live`]'s `extra` ([`RunHooks::then`] combines them).
 
-use colslam_slam::error_chain;
 use crate::{
     FrameUpdate, KeyframeUpdate, MapDelta, RunController, RunSettings, RunState, Summary, VIEW_MAX_WIDTH, ViewerCamera,
     ViewerHandle, ViewerPoint, ViewerUpdate, downscale_for_view,
@@ -27,6 +26,7 @@ use crate::{
 use colslam_camera::Camera;
 use colslam_image::Image;
 use colslam_scene::Reconstruction;
+use colslam_slam::error_chain;
 use colslam_slam::run::{RunConfig, RunHooks, RunOptions, RunOutput, RunStart};
 use colslam_slam::{EventSink, SlamError, SlamEvent};
 use std::collections::{HashMap, HashSet, VecDeque};
@@ -460,7 +460,6 @@ impl RunShared {
     }
 }
 
-
 /// Runs the pipeline with the viewer following live: resets the page, feeds
 /// frames, keyframes, map increments and the summary through the bridge
 /// thread, then shows the final model (read back from the output folder)
@@ -670,11 +669,8 @@ mod tests {
         }
         let file = dir.path().join("file");
         std::fs::write(&file, "x").expect("write");
-        let viewer = crate::Viewer::start(crate::ViewerOptions {
-            port: 0,
-            ..crate::ViewerOptions::default()
-        })
-        .expect("viewer");
+        let viewer =
+            crate::Viewer::start(crate::ViewerOptions { port: 0, ..crate::ViewerOptions::default() }).expect("viewer");
         let shared = Arc::new(RunShared::default());
         let controller = ViewController::new(viewer.handle(), Arc::clone(&shared), base());
         let settings = |output: &Path| RunSettings {
@@ -885,5 +881,4 @@ mod tests {
         slot.store(None, false);
         assert!(slot.get().is_none());
     }
-
 }

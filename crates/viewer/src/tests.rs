@@ -16,15 +16,8 @@ fn start() -> Viewer {
 
 /// Sends raw bytes, returns (status, body).
 fn raw(v: &Viewer, request: &[u8]) -> (u16, Vec<u8>) {
-    let mut s = TcpStream::connect(v.local_addr()).expect("connect");
-    s.set_read_timeout(Some(Duration::from_secs(10))).expect("timeout");
-    s.write_all(request).expect("write");
-    let mut out = Vec::new();
-    s.read_to_end(&mut out).expect("read");
-    let split = out.windows(4).position(|w| w == b"\r\n\r\n").expect("response head");
-    let head = String::from_utf8_lossy(&out[..split]).into_owned();
-    let status = head.split_whitespace().nth(1).and_then(|c| c.parse().ok()).expect("status code");
-    (status, out[split + 4..].to_vec())
+    let (status, _, body) = raw_to(v.local_addr(), request);
+    (status, body)
 }
 
 fn get(v: &Viewer, path: &str) -> (u16, Vec<u8>) {

@@ -131,7 +131,7 @@ fn make_extractor(options: &FrontendOptions, num_features: usize) -> Result<Box<
             // ORB-SLAM's spread of keypoints over the image, not the
             // features crate's default (the strongest corners, which match
             // best pair by pair): tracking and geometry gain more from
-            // coverage (docs/benchmarks.md).
+            // coverage (docs/history.md).
             eo.orb.selection = colslam_features::Selection::Quadtree;
             Ok(extractor_by_name("orb", &eo)?)
         }

@@ -10,7 +10,7 @@
 //! Defaults follow the paper (section 4.2: flow threshold 0.05, 20
 //! initialisation frames, 50 matches) and COLMAP's mapper where the paper
 //! is silent; where video needs other values than COLMAP's photo
-//! collections, the field says why (measurements in docs/benchmarks.md).
+//! collections, the field says why (measurements in docs/history.md).
 
 use crate::error::SlamError;
 use colslam_estimators::{AbsolutePoseOptions, RansacOptions};
@@ -282,7 +282,7 @@ pub const REVISIT_MAX_SPACINGS: f64 = 10.0;
 /// iterations at 1e-6). The map around a new keyframe is already adjusted
 /// from the previous keyframes, so later iterations move it by hundredths of
 /// a pixel; the looser tolerance more than halves local BA time at the same
-/// accuracy (docs/benchmarks.md).
+/// accuracy (docs/history.md).
 pub const LOCAL_BA_FUNCTION_TOLERANCE: f64 = 1e-3;
 
 /// The same for the global BAs run while the map grows; the final global BA
@@ -333,7 +333,7 @@ impl MapperOptions {
 /// Function tolerance of the global BA that ends the rolling-shutter
 /// compensation: it starts from observations moved by pixels, so at Ceres'
 /// 1e-6 it runs many more iterations for the same trajectory
-/// (docs/benchmarks.md).
+/// (docs/history.md).
 pub const ROLLING_SHUTTER_FINAL_BA_TOLERANCE: f64 = 1e-4;
 
 /// How far a global bundle adjustment converges.

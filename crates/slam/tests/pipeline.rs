@@ -267,7 +267,7 @@ fn a_slow_camera_widens_the_initialisation_window() {
     // pixels); measured 6.6 mm (0.08 %) with the default keypoint count, and
     // 7 mm to 10 cm over keypoint counts 800-2000 in `colslam demo --frames
     // 300 --width 320 --height 240 --scene-seed 11`, while the same path at
-    // 640x480 stays at 1.1-1.9 mm (docs/benchmarks.md).
+    // 640x480 stays at 1.1-1.9 mm (docs/history.md).
     assert!(ate.ate_rmse < 1e-3 * diagonal, "ATE {} m vs scene diagonal {} m", ate.ate_rmse, diagonal);
 }
 

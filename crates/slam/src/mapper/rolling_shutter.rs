@@ -7,7 +7,7 @@
 //! the camera as it was at that moment, not at the frame's timestamp; on TUM
 //! fr1/rpy (a Kinect v1 turning at up to ~30 deg/s) that is several pixels
 //! and was the largest error left: with the ground truth's angular velocity
-//! the ATE fell from 2.2 to 0.9 cm (docs/benchmarks.md).
+//! the ATE fell from 2.2 to 0.9 cm (docs/history.md).
 //!
 //! The pipeline corrects offline, after mapping, when every frame has a pose:
 //! each frame's angular velocity comes from its neighbours' poses (central
@@ -91,7 +91,7 @@ impl Mapper {
     /// corrected observations join tracks they did not fit before), then to
     /// [`crate::options::ROLLING_SHUTTER_FINAL_BA_TOLERANCE`], and every frame is localised again.
     /// Re-estimating the velocities from the compensated poses and repeating
-    /// gave no better trajectory, at a global BA each (docs/benchmarks.md).
+    /// gave no better trajectory, at a global BA each (docs/history.md).
     /// Returns the new localisation, or `first` when nothing moved.
     pub fn compensate_rolling_shutter(
         &mut self,

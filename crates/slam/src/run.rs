@@ -233,9 +233,11 @@ pub fn resolve_camera(
 ) -> Result<ResolvedCamera, SlamError> {
     if let Some(path) = &opts.camera {
         let camera = colslam_camera::file::read_camera_file(path)?;
+        tracing::info!("camera from {}", path.display());
         return Ok(ResolvedCamera { camera, source: CameraSource::File { path: path.clone() } });
     }
     if let Some(name) = &opts.preset {
+        tracing::info!("camera from the preset {name}");
         return Ok(ResolvedCamera {
             camera: preset_camera(name)?,
             source: CameraSource::Preset { name: name.clone() },
@@ -415,7 +417,7 @@ fn publish(
     let input = config.input.display().to_string();
     let mut report = write_outputs(result, dir, &input, end.options, format)?;
     if let Some(gt) = &config.gt {
-        report.eval = Some(evaluate(gt, dir)?);
+        report.eval = Some(evaluate(gt, dir, output.target())?);
     }
     result.timings.add(Stage::Output, t.elapsed());
     if let Some(n) = end.stopped_after {
@@ -433,10 +435,12 @@ fn publish(
 }
 
 /// ATE of `out/trajectory.tum` against `gt` (what `colslam eval` gives on
-/// the written file), with a plot beside it.
-fn evaluate(gt: &Path, out: &Path) -> Result<colslam_eval::EvalReport, SlamError> {
+/// the written file), with a plot beside it. `out` is the staging folder;
+/// the report names the file where it will be, in `target`.
+fn evaluate(gt: &Path, out: &Path, target: &Path) -> Result<colslam_eval::EvalReport, SlamError> {
     let est = out.join("trajectory.tum");
-    let report = colslam_eval::evaluate_files(gt, &est, &colslam_eval::EvalOptions::default())?;
+    let mut report = colslam_eval::evaluate_files(gt, &est, &colslam_eval::EvalOptions::default())?;
+    report.estimate = target.join("trajectory.tum").display().to_string();
     colslam_eval::plot::plot_evaluation(&report, &out.join("trajectory.eval.png"))?;
     Ok(report)
 }
@@ -684,6 +688,26 @@ mod tests {
             let read = |dir: &Path| std::fs::read(dir.join(name)).unwrap_or_else(|e| panic!("{name}: {e}"));
             assert!(read(&first) == read(&second), "{name} differs when the written camera is given back");
         }
+    }
+
+    #[test]
+    fn the_evaluation_names_the_published_trajectory() {
+        let root = tempfile::tempdir().unwrap_or_else(|e| panic!("tempdir: {e}"));
+        let input = sequence(root.path(), 20);
+        let out = root.path().join("out");
+        run(&config(&input, &out, 20, false), EventSink::none(), RunHooks::default())
+            .unwrap_or_else(|e| panic!("run: {e}"));
+        let gt = root.path().join("gt.tum");
+        std::fs::copy(out.join("trajectory.tum"), &gt).unwrap_or_else(|e| panic!("copy: {e}"));
+        let mut c = config(&input, &out, 20, false);
+        c.gt = Some(gt);
+        let r = run(&c, EventSink::none(), RunHooks::default()).unwrap_or_else(|e| panic!("run: {e}"));
+        let eval = r.report.eval.unwrap_or_else(|| panic!("no evaluation"));
+        // Not the staging folder the file was evaluated in before the swap.
+        assert_eq!(eval.estimate, out.join("trajectory.tum").display().to_string());
+        assert!(eval.ate_rmse < 1e-6, "the same trajectory: {}", eval.ate_rmse);
+        let text = std::fs::read_to_string(out.join("report.json")).unwrap_or_else(|e| panic!("{e}"));
+        assert!(!text.contains("staging"), "report.json names a staging folder");
     }
 
     #[test]

@@ -65,8 +65,13 @@ pub enum ScreenshotError {
         message: String,
     },
     /// The page never said it had drawn the scene.
-    #[error("the page did not finish drawing within {VIRTUAL_TIME_BUDGET_MS} ms of virtual time (no {DRAWN_MARK})")]
-    NotDrawn,
+    #[error(
+        "the page did not finish drawing within {VIRTUAL_TIME_BUDGET_MS} ms of virtual time (no {DRAWN_MARK}; it reached {stage:?})"
+    )]
+    NotDrawn {
+        /// The last stage the page reported.
+        stage: String,
+    },
     /// The picture could not be written.
     #[error("{path}: cannot write the screenshot")]
     Write {
@@ -187,7 +192,11 @@ pub fn capture(chromium: &Path, url: &str, size: (u32, u32), out: &Path) -> Resu
         }
     };
     if !dom.contains(DRAWN_MARK) {
-        return Err(ScreenshotError::NotDrawn);
+        let stage = dom
+            .split_once("data-screenshot-stage=\"")
+            .and_then(|(_, rest)| rest.split_once('"'))
+            .map_or("nothing (the page did not start)", |(stage, _)| stage);
+        return Err(ScreenshotError::NotDrawn { stage: stage.to_string() });
     }
     colslam_image::write_atomic(out, &png).map_err(|source| ScreenshotError::Write { path: out.to_path_buf(), source })
 }

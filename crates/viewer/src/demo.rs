@@ -33,7 +33,9 @@ pub fn demo_reconstruction(num_cameras: usize, num_points: usize, seed: u64) -> 
     // (moved onto the point's projection below), the other slots are
     // unmatched keypoints spread over the image.
     let keypoints: Vec<Vec2> = (0..num_points)
-        .map(|j| Vec2::new(((j * 37) % DEMO_WIDTH as usize) as f64 + 0.5, ((j * 53) % DEMO_HEIGHT as usize) as f64 + 0.5))
+        .map(|j| {
+            Vec2::new(((j * 37) % DEMO_WIDTH as usize) as f64 + 0.5, ((j * 53) % DEMO_HEIGHT as usize) as f64 + 0.5)
+        })
         .collect();
     for i in 0..num_cameras {
         let id = ImageId(u32::try_from(i + 1).unwrap_or(u32::MAX));
@@ -72,10 +74,10 @@ pub fn demo_reconstruction(num_cameras: usize, num_points: usize, seed: u64) -> 
             let image_id = ImageId(u32::try_from(i + 1).unwrap_or(u32::MAX));
             let camera = rec.camera(cam).map(|c| c.camera.clone());
             let pose = rec.image(image_id).map(|img| img.cam_from_world);
-            if let (Some(camera), Some(pose), Some(p)) = (camera, pose, rec.point3d(id)) {
-                if let Some(xy) = colslam_scene::projection::project(&camera, &pose, &p.xyz) {
-                    rec.set_point2d_xy(image_id, slot, xy)?;
-                }
+            if let (Some(camera), Some(pose), Some(p)) = (camera, pose, rec.point3d(id))
+                && let Some(xy) = colslam_scene::projection::project(&camera, &pose, &p.xyz)
+            {
+                rec.set_point2d_xy(image_id, slot, xy)?;
             }
         }
     }

@@ -133,8 +133,7 @@ impl ImageSource {
             return ImageSource::Missing("the model has no registered image".into());
         };
         let parent = model_dir.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
-        let candidates =
-            [model_dir.join("images"), parent.to_path_buf(), parent.join("rgb"), parent.join("images")];
+        let candidates = [model_dir.join("images"), parent.to_path_buf(), parent.join("rgb"), parent.join("images")];
         for dir in candidates {
             if resolve_in_folder(&dir, &first.name).is_ok_and(|p| p.is_file()) {
                 tracing::debug!("images of {}: {}", model_dir.display(), dir.display());
@@ -227,9 +226,9 @@ pub fn load_picture(
             colslam_image::Image::read(&path).map_err(|source| PictureError::Decode { name: name.clone(), source })?
         }
         ImageSource::Sequence { input, files } => {
-            let path = files.get(name).ok_or_else(|| {
-                PictureError::Missing(format!("{name:?} is not a frame of {}", input.display()))
-            })?;
+            let path = files
+                .get(name)
+                .ok_or_else(|| PictureError::Missing(format!("{name:?} is not a frame of {}", input.display())))?;
             colslam_image::Image::read(path).map_err(|source| PictureError::Decode { name: name.clone(), source })?
         }
         ImageSource::Video(file) => {

@@ -701,8 +701,10 @@ fn route(s: &mut TcpStream, req: &Request, conn: &Conn) -> std::io::Result<()> {
         "/api/load" if post => api_load(s, req, shared),
         "/api/export" if post => api_export(s, req, shared),
         "/" | "/index.html" | "/app.js" | "/style.css" | "/favicon.ico" | "/events" | "/api/state"
-        | "/api/frame.png" | "/api/keyframe.png" | "/api/camera" | "/api/image" | "/api/max_frames" | "/api/run" | "/api/stop" | "/api/load"
-        | "/api/export" => respond_error(s, 405, &format!("{} not allowed on {}", req.method, req.path)),
+        | "/api/frame.png" | "/api/keyframe.png" | "/api/camera" | "/api/image" | "/api/max_frames" | "/api/run"
+        | "/api/stop" | "/api/load" | "/api/export" => {
+            respond_error(s, 405, &format!("{} not allowed on {}", req.method, req.path))
+        }
         _ => respond_error(s, 404, &format!("no such resource {}", req.path)),
     }
 }

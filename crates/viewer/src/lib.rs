@@ -34,8 +34,8 @@ mod export;
 mod frames;
 mod gt;
 mod http;
-pub mod screenshot;
 mod live;
+pub mod screenshot;
 mod state;
 mod types;
 

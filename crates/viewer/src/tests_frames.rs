@@ -4,8 +4,8 @@
 
 use super::tests::{get, get_json, post, raw, start};
 use super::*;
-use serde_json::Value;
 use colslam_scene::{ImageId, Reconstruction};
+use serde_json::Value;
 use std::path::Path;
 
 /// A demo model with one observation moved 10 px off its projection (an

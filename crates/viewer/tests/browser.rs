@@ -101,7 +101,8 @@ fn frame_panel_expectations(rec: &mut colslam_scene::Reconstruction, images: &Pa
         }
         img.write_png(&images.join(&rec.image(*id).expect("image").name)).expect("write image");
     }
-    let observations = |id: ImageId| rec.image(id).expect("image").points2d.iter().filter(|p| p.point3d_id.is_some()).count();
+    let observations =
+        |id: ImageId| rec.image(id).expect("image").points2d.iter().filter(|p| p.point3d_id.is_some()).count();
     let kps = rec.image(latest).expect("latest").points2d.len();
     let click = ids[2];
     let timeline_rank = 4;
@@ -447,7 +448,14 @@ fn browser_end_to_end() {
     let log = log.join().unwrap_or_default();
     eprintln!("{log}");
     assert!(status.success() && result == "ALL OK", "browser scenarios failed ({result}):\n{log}");
-    for name in ["viewer-camera-panel.png", "viewer-ground-truth.png", "viewer-reconstruction.png", "viewer-frame-view.png", "viewer-overview.png", "viewer-track.png"] {
+    for name in [
+        "viewer-camera-panel.png",
+        "viewer-ground-truth.png",
+        "viewer-reconstruction.png",
+        "viewer-frame-view.png",
+        "viewer-overview.png",
+        "viewer-track.png",
+    ] {
         let png = std::fs::read(shots.join(name)).expect("screenshot written");
         assert!(png.starts_with(b"\x89PNG"), "{name} is a PNG");
     }
@@ -482,7 +490,6 @@ fn screenshot_mode_writes_the_drawn_page() {
     assert!(shots[0] == shots[1], "the same model gave two different pictures");
     let img = colslam_image::Image::decode(&shots[0], Path::new("a.png")).expect("a PNG");
     assert_eq!((img.width(), img.height()), (640, 400));
-    let colours: std::collections::HashSet<Vec<u8>> =
-        img.data().chunks(img.channels()).map(<[u8]>::to_vec).collect();
+    let colours: std::collections::HashSet<Vec<u8>> = img.data().chunks(img.channels()).map(<[u8]>::to_vec).collect();
     assert!(colours.len() > 50, "a near-uniform picture ({} colours)", colours.len());
 }

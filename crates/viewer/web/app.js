@@ -701,12 +701,14 @@ function setCurrent(id, explicit) {
   updatePanels();
 }
 
-// Highlighted observed points and the current frustum, drawn over the rest.
-// O(drawn points) per change of the current camera, never per mouse move.
+// The current frustum, and the observed points of a camera the user chose
+// (the latest camera of a growing map is not highlighted: its points would
+// hide the colours), drawn over the rest. O(drawn points) per change of the
+// chosen camera, never per mouse move.
 function uploadCameraLayers() {
   const c = model.cameras.get(cur.id);
   const hp = [], hc = [];
-  if (c) {
+  if (c && cur.explicit) {
     const P = drawn.pts;
     for (let i = 0; i < drawn.nPts; i++) {
       if (!drawn.tracks[i].includes(cur.id)) continue;
@@ -742,7 +744,7 @@ function showCameraInfo() {
   const d = cur.detail && cur.detail.id === c.id ? cur.detail : null;
   const stamp = d && d.timestamp != null ? d.timestamp : null;
   $('info-time').textContent = stamp != null ? 'time ' + stamp.toFixed(3) + ' s' : 'registration #' + c.order;
-  $('info-obs').textContent = d ? d.observations : $('stats').dataset.highlightedPoints;
+  $('info-obs').textContent = d ? d.observations : (cur.explicit ? $('stats').dataset.highlightedPoints : '–');
   $('info-err').textContent = d && d.mean_reproj_error != null ? fmt(d.mean_reproj_error, 3) + ' px' : '–';
 }
 

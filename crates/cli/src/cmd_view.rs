@@ -9,7 +9,9 @@
 use crate::stdout::outln;
 use anyhow::{Context, Result};
 use colslam_slam::run::{RunConfig, RunOptions};
-use colslam_viewer::{DEFAULT_PORT, RunShared, ViewController, Viewer, ViewerOptions, run_live};
+use colslam_viewer::{
+    DEFAULT_PORT, GroundTruthLayer, ImageSource, RunShared, ViewController, Viewer, ViewerOptions, run_live,
+};
 use std::io::Write;
 use std::net::IpAddr;
 use std::path::PathBuf;
@@ -49,8 +51,32 @@ pub struct ViewArgs {
     /// COLMAP model folder to show (binary or text). Without it the page
     /// starts empty: load a model or start a run from the page.
     pub model: Option<PathBuf>,
+    /// Folder of the model's images (COLMAP's image_path), or the video the
+    /// model was made from; the frame panel shows them with their
+    /// keypoints. Default: the input named by a colslam run's report.json
+    /// beside the model, else the first of MODEL/images, the folder above
+    /// the model, its rgb/ and its images/ that holds the images.
+    #[arg(long, requires = "model")]
+    pub images: Option<PathBuf>,
+    /// Ground-truth trajectory (TUM format) to compare the model's cameras
+    /// with: drawn aligned to the model (Sim(3), as `colslam eval`), the
+    /// path coloured by the error, the ATE shown.
+    #[arg(long, requires = "model")]
+    pub gt: Option<PathBuf>,
+    /// Write a picture of the page to this PNG file and exit instead of
+    /// serving (headless Chromium: COLSLAM_CHROMIUM, else chromium,
+    /// chromium-browser or google-chrome on PATH). Same input, same picture.
+    #[arg(long, requires = "model")]
+    pub screenshot: Option<PathBuf>,
+    /// Size of the screenshot, WIDTHxHEIGHT.
+    #[arg(long, default_value = "1280x800", requires = "screenshot", value_parser = parse_size)]
+    pub size: (u32, u32),
     #[command(flatten)]
     pub server: ServerArgs,
+}
+
+fn parse_size(s: &str) -> Result<(u32, u32), String> {
+    colslam_viewer::screenshot::parse_size(s).map_err(|e| e.to_string())
 }
 
 /// Viewer flags of `run`.
@@ -89,11 +115,43 @@ pub fn run(args: &ViewArgs) -> Result<()> {
         ),
         None => None,
     };
-    let viewer = Viewer::start(args.server.options())?;
-    let shared = Arc::new(RunShared::default());
-    viewer.set_controller(Arc::new(ViewController::new(viewer.handle(), shared, RunOptions::default())));
+    let images = match &args.images {
+        Some(dir) => Some(ImageSource::given(dir).context("--images")?),
+        None => None,
+    };
+    let gt = match (&args.gt, &model) {
+        (Some(file), Some(rec)) => {
+            let traj = colslam_eval::Trajectory::read_tum(file)?;
+            let name = file.display().to_string();
+            Some(GroundTruthLayer::compute(rec, &traj, &name).with_context(|| format!("comparing with {name}"))?)
+        }
+        _ => None,
+    };
+    let chromium = match &args.screenshot {
+        Some(_) => Some(colslam_viewer::screenshot::find_chromium()?),
+        None => None,
+    };
+    // A screenshot needs no fixed port.
+    let options =
+        ViewerOptions { port: if chromium.is_some() { 0 } else { args.server.port }, ..args.server.options() };
+    let viewer = Viewer::start(options)?;
+    if chromium.is_none() {
+        let shared = Arc::new(RunShared::default());
+        viewer.set_controller(Arc::new(ViewController::new(viewer.handle(), shared, RunOptions::default())));
+    }
     if let (Some(rec), Some(dir)) = (&model, &args.model) {
         viewer.set_reconstruction_from(rec, &dir.display().to_string());
+        viewer.set_images(images.unwrap_or_else(|| ImageSource::discover(dir, rec)));
+        if let Some(layer) = gt {
+            outln!("ground truth: ATE {:.6} m over {} poses (Sim(3))", layer.ate_rmse, layer.matched);
+            viewer.set_ground_truth(Some(layer));
+        }
+    }
+    if let (Some(chromium), Some(out)) = (chromium, &args.screenshot) {
+        colslam_viewer::screenshot::capture(&chromium, &viewer.url(), args.size, out)?;
+        outln!("screenshot written to {}", out.display());
+        viewer.shutdown();
+        return Ok(());
     }
     announce(&viewer)?;
     if let Some(rec) = &model {

@@ -108,6 +108,99 @@ await scenario('load a saved model: counts', async () => {
   await waitStats({ connected: 1, points: m.points, cameras: m.cameras, drawnPoints: m.points }, 'after reload');
 });
 
+// ---------------------------------------------------------------- cameras (frame panel, selection, timeline, grid, ground truth)
+const fm = cfg.frames;
+// Waits until the camera panel shows camera `id` with its picture and the
+// keypoints drawn by state.
+async function waitCameraPanel(id, what) {
+  try {
+    await page.waitForFunction((want) => {
+      const p = document.getElementById('cam-panel');
+      return !p.hidden && p.dataset.cameraId === String(want) && p.dataset.imageId === String(want)
+        && document.getElementById('cam-img').naturalWidth > 0;
+    }, id, { timeout: TIMEOUT_MS });
+  } catch (e) {
+    const d = await page.evaluate(() => ({ ...document.getElementById('cam-panel').dataset, note: document.getElementById('cam-note').textContent }));
+    throw new Error(`${what}: camera panel should show camera ${id}, shows ${JSON.stringify(d)}`);
+  }
+}
+const panelCounts = () => page.evaluate(() => {
+  const d = document.getElementById('cam-panel').dataset;
+  return { triangulated: Number(d.kpTriangulated), outlier: Number(d.kpOutlier), unmatched: Number(d.kpUnmatched) };
+});
+// Screen position of camera `id`'s centre, from the page's own projection.
+const cameraOnScreen = (id) => page.evaluate((cid) => {
+  const r = document.getElementById('gl').getBoundingClientRect(), mm = viewProj(r.width / r.height), c = model.cameras.get(cid);
+  const [x, y, z] = c.c;
+  const w = mm[3] * x + mm[7] * y + mm[11] * z + mm[15];
+  return { x: r.left + ((mm[0] * x + mm[4] * y + mm[8] * z + mm[12]) / w * 0.5 + 0.5) * r.width,
+    y: r.top + (0.5 - (mm[1] * x + mm[5] * y + mm[9] * z + mm[13]) / w * 0.5) * r.height };
+}, id);
+
+await scenario('a loaded model shows the latest camera: its image and keypoints by state', async () => {
+  await waitCameraPanel(fm.latest.id, 'latest camera');
+  const counts = await panelCounts();
+  const want = fm.latest.counts;
+  if (['triangulated', 'outlier', 'unmatched'].some((k) => counts[k] !== want[k])) throw new Error(`keypoints drawn ${JSON.stringify(counts)}, model has ${JSON.stringify(want)}`);
+  if (!(await page.isHidden('#kf-panel')) || !(await page.isHidden('#cur-panel'))) throw new Error('empty live panels still shown for a loaded model');
+  // The picture is the one on disk (its blue channel encodes the camera).
+  const blue = await page.evaluate(() => {
+    const img = document.getElementById('cam-img'), c = document.createElement('canvas');
+    c.width = img.naturalWidth; c.height = img.naturalHeight;
+    const g = c.getContext('2d'); g.drawImage(img, 0, 0);
+    return g.getImageData(2, 2, 1, 1).data[2];
+  });
+  if (blue !== fm.latest.blue) throw new Error(`picture pixel blue ${blue}, file has ${fm.latest.blue}`);
+  await waitText('#hint', /drag: rotate/, 'mouse hint');
+  await page.locator('#frame-view').screenshot({ path: shot('viewer-camera-panel.png') });
+});
+
+await scenario('clicking a camera selects it: image, info box, highlighted points', async () => {
+  const pos = await cameraOnScreen(fm.click.id);
+  await page.mouse.click(pos.x, pos.y);
+  await waitCameraPanel(fm.click.id, 'clicked camera');
+  await page.waitForFunction((id) => document.getElementById('cam-info').dataset.cameraId === String(id), fm.click.id, { timeout: TIMEOUT_MS });
+  await waitText('#info-id', new RegExp(`^${fm.click.id}$`), 'info box id');
+  await waitText('#info-obs', new RegExp(`^${fm.click.observations}$`), 'info box observations');
+  await waitText('#info-err', /px$/, 'info box error');
+  await waitStats({ currentCamera: fm.click.id, highlightedPoints: fm.click.observations }, 'observed points highlighted');
+  const counts = await panelCounts();
+  if (counts.triangulated + counts.outlier !== fm.click.observations) throw new Error(`keypoints with 3D points ${JSON.stringify(counts)}`);
+});
+
+await scenario('the timeline moves the current camera', async () => {
+  await setRange('#timeline', fm.timeline.rank);
+  await waitStats({ currentCamera: fm.timeline.id, timeline: fm.timeline.rank }, 'timeline');
+  await waitCameraPanel(fm.timeline.id, 'timeline camera');
+  // Play advances through registration order.
+  await page.click('#play-btn');
+  await page.waitForFunction((id) => Number(document.getElementById('stats').dataset.currentCamera) > id, fm.timeline.id, { timeout: TIMEOUT_MS });
+  await page.click('#play-btn');
+  const after = Number(await stat('current-camera'));
+  await page.waitForTimeout(600);
+  if (Number(await stat('current-camera')) !== after) throw new Error('pause did not stop the timeline');
+});
+
+await scenario('ground grid and axes with a scale, toggleable', async () => {
+  const step = Number(await stat('grid-step'));
+  const digits = step / Math.pow(10, Math.floor(Math.log10(step)));
+  if (!(step > 0) || ![1, 2, 5].some((d) => Math.abs(digits - d) < 1e-6)) throw new Error(`grid step ${step} is not 1-2-5`);
+  if (!(Number(await stat('drawn-grid-lines')) > 4)) throw new Error('no grid lines');
+  await waitText('#grid-label', /grid .* model units/, 'scale label');
+  await page.uncheck('#show-grid');
+  await waitStats({ drawnGridLines: 0 }, 'grid hidden');
+  await page.check('#show-grid');
+});
+
+await scenario('ground truth: aligned path, error colours and the ATE of colslam eval', async () => {
+  await rust('gt');
+  await page.waitForFunction(() => !document.getElementById('ate-row').hidden, null, { timeout: TIMEOUT_MS });
+  const ate = Number(await page.getAttribute('#sum-ate', 'data-ate'));
+  if (!(Math.abs(ate - fm.gt.ate) <= 1e-9 * Math.max(1, fm.gt.ate))) throw new Error(`page ATE ${ate}, colslam eval ${fm.gt.ate}`);
+  await waitStats({ gtSegments: fm.gt.segments }, 'ground-truth path');
+  await page.locator('#recon-view').screenshot({ path: shot('viewer-ground-truth.png') });
+});
+
 await scenario('track selector draws lines to observing cameras', async () => {
   await setTrack(m.track.id);
   await waitStats({ selectedPoint: m.track.id, drawnTrackLines: m.track.lines }, 'track selected');
@@ -119,6 +212,8 @@ await scenario('track selector draws lines to observing cameras', async () => {
 
 await scenario('clicking a point selects its track', async () => {
   await setTrack(-1);
+  // Cameras hidden: a click then picks points only.
+  await page.uncheck('#show-cams');
   // Screen position of the first drawn point, from the page's own projection.
   const pos = await page.evaluate(() => {
     const r = document.getElementById('gl').getBoundingClientRect(), mm = viewProj(r.width / r.height), P = drawn.pts;
@@ -134,6 +229,7 @@ await scenario('clicking a point selects its track', async () => {
   if (!pos) throw new Error('no point on screen');
   await page.mouse.click(pos.x, pos.y);
   await page.waitForFunction(() => document.getElementById('stats').dataset.selectedPoint !== '-1', null, { timeout: TIMEOUT_MS });
+  await page.check('#show-cams');
   const lines = Number(await stat('drawn-track-lines'));
   if (!(lines >= 1)) throw new Error('picked point draws no track lines');
   await page.locator('#recon-view').screenshot({ path: shot('viewer-track.png') });
@@ -277,6 +373,18 @@ await scenario('large map: 100,000 points and 2,000 cameras', async () => {
   });
   log(`PERF large map: fed + delivered + rebuilt in ${arrive} ms; rebuild ${t.rebuild.toFixed(1)} ms (cameras and tracks only: ${t.camerasOnly.toFixed(1)} ms); draw (software GL) ${t.drawMedian.toFixed(1)} ms`);
   if (t.rebuild > big.max_rebuild_ms) throw new Error(`rebuild took ${t.rebuild} ms`);
+  // Selecting a camera (highlight of its points) and picking by click stay
+  // cheap on the large map: neither walks the points per mouse move.
+  const sel = await page.evaluate(() => {
+    const c = drawn.camsSorted[drawn.camsSorted.length >> 1];
+    const a = performance.now(); setCurrent(c.id, true); const b = performance.now();
+    const r = document.getElementById('gl').getBoundingClientRect();
+    const p0 = performance.now(); pickCamera({ clientX: r.left + r.width / 2, clientY: r.top + r.height / 2 }); const p1 = performance.now();
+    return { select: b - a, pick: p1 - p0, highlighted: Number(document.getElementById('stats').dataset.highlightedPoints) };
+  });
+  log(`PERF large map: select a camera ${sel.select.toFixed(1)} ms (${sel.highlighted} points highlighted), pick ${sel.pick.toFixed(2)} ms`);
+  if (!(sel.highlighted > 0)) throw new Error('the selected camera highlights no points');
+  if (sel.select > big.max_rebuild_ms || sel.pick > big.max_pick_ms) throw new Error(`selection ${sel.select} ms, pick ${sel.pick} ms`);
   await page.locator('#recon-view').screenshot({ path: shot('viewer-large-map.png') });
   // An increment on top of the large map: one new point.
   await rust('large-delta');

@@ -14,7 +14,7 @@ const DEMO_FOCAL: f64 = 500.0;
 const DEMO_TRACK_LENGTH: usize = 3;
 
 /// A reconstruction with `num_cameras` registered images (one PINHOLE
-/// camera, names `frame_000000.png`, ...) moving along a line and
+/// camera, names `frame_000000.png`, ...) moving along a wavy line and
 /// `num_points` points in front of them, each observed by up to 3
 /// consecutive images starting at a random one. Deterministic in `seed`.
 pub fn demo_reconstruction(num_cameras: usize, num_points: usize, seed: u64) -> Result<Reconstruction, SceneError> {
@@ -29,15 +29,23 @@ pub fn demo_reconstruction(num_cameras: usize, num_points: usize, seed: u64) -> 
         0.5 * DEMO_HEIGHT as f64,
     ));
     let track_len = DEMO_TRACK_LENGTH.min(num_cameras);
-    // Each image gets one keypoint slot per point; slot j observes point j.
-    let keypoints: Vec<Vec2> = (0..num_points).map(|j| Vec2::new((j % 600) as f64 + 1.0, 10.0)).collect();
+    // Each image gets one keypoint slot per point; slot j observes point j
+    // (moved onto the point's projection below), the other slots are
+    // unmatched keypoints spread over the image.
+    let keypoints: Vec<Vec2> = (0..num_points)
+        .map(|j| {
+            Vec2::new(((j * 37) % DEMO_WIDTH as usize) as f64 + 0.5, ((j * 53) % DEMO_HEIGHT as usize) as f64 + 0.5)
+        })
+        .collect();
     for i in 0..num_cameras {
         let id = ImageId(u32::try_from(i + 1).unwrap_or(u32::MAX));
         let mut img = Image::new(id, format!("frame_{i:06}.png"), CameraId(cam.0), keypoints.clone());
         // Camera centre moves along +x with a slight turn; it looks along +z.
         let yaw = 0.02 * i as f64;
         let rot = Quat::from_euler_angles(0.0, yaw, 0.0);
-        let center = Vec3::new(0.25 * i as f64, 0.0, 0.0);
+        // A slight wave keeps the path from being a line (an alignment of
+        // the cameras with a ground truth needs that).
+        let center = Vec3::new(0.25 * i as f64, 0.1 * (0.7 * i as f64).sin(), 0.0);
         let world_from_cam = Rigid3::new(rot, center);
         img.cam_from_world = world_from_cam.inverse();
         img.registered = true;
@@ -59,7 +67,20 @@ pub fn demo_reconstruction(num_cameras: usize, num_points: usize, seed: u64) -> 
         let track = (first..first + track_len)
             .map(|i| TrackElement::new(ImageId(u32::try_from(i + 1).unwrap_or(u32::MAX)), slot))
             .collect();
-        rec.add_point3d(xyz, color, track)?;
+        let id = rec.add_point3d(xyz, color, track)?;
+        // Observations sit where the point projects, so reprojection errors
+        // are zero (points behind a camera keep their spread position).
+        for i in first..first + track_len {
+            let image_id = ImageId(u32::try_from(i + 1).unwrap_or(u32::MAX));
+            let camera = rec.camera(cam).map(|c| c.camera.clone());
+            let pose = rec.image(image_id).map(|img| img.cam_from_world);
+            if let (Some(camera), Some(pose), Some(p)) = (camera, pose, rec.point3d(id))
+                && let Some(xy) = colslam_scene::projection::project(&camera, &pose, &p.xyz)
+            {
+                rec.set_point2d_xy(image_id, slot, xy)?;
+            }
+        }
     }
+    rec.update_point_errors()?;
     Ok(rec)
 }

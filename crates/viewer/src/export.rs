@@ -70,10 +70,10 @@ pub fn tum_trajectory(rec: &Reconstruction) -> String {
     let mut out = String::from("# timestamp tx ty tz qx qy qz qw\n");
     for (order, id) in rec.registered_image_ids().iter().enumerate() {
         let Some(img) = rec.image(*id) else { continue };
-        let stem = Path::new(&img.name).file_stem().and_then(|s| s.to_str()).unwrap_or("");
-        let stamp = match stem.parse::<f64>() {
-            Ok(t) if t.is_finite() => stem.to_string(),
-            _ => order.to_string(),
+        // The stem's own text keeps every digit of the name.
+        let stamp = match name_timestamp(&img.name) {
+            Some(_) => Path::new(&img.name).file_stem().and_then(|s| s.to_str()).unwrap_or("").to_string(),
+            None => order.to_string(),
         };
         let world_from_cam = img.cam_from_world.inverse();
         let t = world_from_cam.translation;
@@ -82,4 +82,30 @@ pub fn tum_trajectory(rec: &Reconstruction) -> String {
         let _ = writeln!(out, "{stamp} {} {} {} {qx} {qy} {qz} {qw}", t.x, t.y, t.z);
     }
     out
+}
+
+/// The timestamp an image name carries: its stem when that is a finite
+/// number (TUM, EuRoC names), else `None`.
+pub(crate) fn name_timestamp(name: &str) -> Option<f64> {
+    let stem = Path::new(name).file_stem()?.to_str()?;
+    stem.parse::<f64>().ok().filter(|t| t.is_finite())
+}
+
+/// The registered images of `rec` as a trajectory with the timestamps of
+/// [`tum_trajectory`] (sorted by time), and the image id of each pose.
+pub(crate) fn model_trajectory(rec: &Reconstruction) -> (colslam_eval::Trajectory, Vec<u32>) {
+    let mut rows: Vec<(f64, u32, colslam_geometry::Rigid3)> = rec
+        .registered_image_ids()
+        .iter()
+        .enumerate()
+        .filter_map(|(order, id)| {
+            let img = rec.image(*id)?;
+            Some((name_timestamp(&img.name).unwrap_or(order as f64), id.0, img.cam_from_world))
+        })
+        .collect();
+    rows.sort_by(|a, b| a.0.total_cmp(&b.0));
+    let stamps = rows.iter().map(|r| r.0).collect();
+    let poses: Vec<_> = rows.iter().map(|r| r.2).collect();
+    let ids = rows.iter().map(|r| r.1).collect();
+    (colslam_eval::Trajectory::from_cam_from_world(stamps, &poses), ids)
 }

@@ -693,14 +693,18 @@ fn route(s: &mut TcpStream, req: &Request, conn: &Conn) -> std::io::Result<()> {
         "/api/state" if get => api_state(s, req, shared),
         "/api/frame.png" if get => picture(s, shared, false),
         "/api/keyframe.png" if get => picture(s, shared, true),
+        "/api/camera" if get => api_camera(s, req, shared),
+        "/api/image" if post => api_image(s, req, shared),
         "/api/max_frames" if post => api_max_frames(s, req, shared),
         "/api/run" if post => api_run(s, req, shared),
         "/api/stop" if post => api_stop(s, shared),
         "/api/load" if post => api_load(s, req, shared),
         "/api/export" if post => api_export(s, req, shared),
         "/" | "/index.html" | "/app.js" | "/style.css" | "/favicon.ico" | "/events" | "/api/state"
-        | "/api/frame.png" | "/api/keyframe.png" | "/api/max_frames" | "/api/run" | "/api/stop" | "/api/load"
-        | "/api/export" => respond_error(s, 405, &format!("{} not allowed on {}", req.method, req.path)),
+        | "/api/frame.png" | "/api/keyframe.png" | "/api/camera" | "/api/image" | "/api/max_frames" | "/api/run"
+        | "/api/stop" | "/api/load" | "/api/export" => {
+            respond_error(s, 405, &format!("{} not allowed on {}", req.method, req.path))
+        }
         _ => respond_error(s, 404, &format!("no such resource {}", req.path)),
     }
 }
@@ -821,6 +825,64 @@ fn picture(s: &mut TcpStream, shared: &Shared, keyframe: bool) -> std::io::Resul
     }
 }
 
+/// The reprojection error (pixels) beyond which the frame panel draws a
+/// keypoint with a 3D point as an outlier: the pipeline's own filter bound.
+fn outlier_threshold() -> f64 {
+    colslam_slam::options::MapperOptions::default().max_reproj_error
+}
+
+/// An image id from a query or body value.
+fn image_id(v: Option<&Value>) -> Result<u32, String> {
+    let id = match v {
+        Some(Value::Number(n)) => n.as_u64(),
+        Some(Value::String(t)) => t.trim().parse::<u64>().ok(),
+        _ => None,
+    };
+    id.and_then(|i| u32::try_from(i).ok()).ok_or_else(|| "id must be an image id (a whole number)".to_string())
+}
+
+/// `GET /api/camera?id=N`: camera N of the loaded model with its keypoints
+/// by state (see [`crate::camera_detail`]). Reads the model in memory only.
+fn api_camera(s: &mut TcpStream, req: &Request, shared: &Shared) -> std::io::Result<()> {
+    let id = match image_id(req.param("id").map(|v| Value::String(v.to_string())).as_ref()) {
+        Ok(id) => id,
+        Err(e) => return respond_error(s, 400, &e),
+    };
+    let Some(rec) = shared.lock().model_and_images().0 else {
+        return respond_error(s, 404, "no loaded model (a live map has no keypoints to show)");
+    };
+    match crate::frames::camera_detail(&rec, id, outlier_threshold()) {
+        Some(v) => respond_json(s, 200, &v),
+        None => respond_error(s, 404, &format!("the model has no image {id}")),
+    }
+}
+
+/// `POST /api/image {id}`: the picture of image `id` of the loaded model, as
+/// PNG at most [`crate::VIEW_MAX_WIDTH`] wide. A POST because it opens a file
+/// (or starts ffmpeg for a video frame): only the page's own requests may.
+/// Only images the model names are read (see [`crate::frames`]).
+fn api_image(s: &mut TcpStream, req: &Request, shared: &Shared) -> std::io::Result<()> {
+    let id = match json_body(req).and_then(|v| image_id(v.get("id"))) {
+        Ok(id) => id,
+        Err(e) => return respond_error(s, 400, &e),
+    };
+    let (Some(rec), Some(images)) = shared.lock().model_and_images() else {
+        return respond_error(s, 404, "no images: no model was loaded from a folder");
+    };
+    // Decoding happens on this client's thread, outside the state lock.
+    let picture = crate::frames::load_picture(&rec, &images, id, crate::VIEW_MAX_WIDTH);
+    match picture {
+        Ok(img) => match img.encode_png(std::path::Path::new("image.png")) {
+            Ok(png) => respond(s, 200, "image/png", &png),
+            Err(e) => respond_error(s, 500, &colslam_slam::error_chain(&e)),
+        },
+        Err(e) => {
+            tracing::debug!("image {id} not served: {}", colslam_slam::error_chain(&e));
+            respond_error(s, e.status(), &colslam_slam::error_chain(&e))
+        }
+    }
+}
+
 fn json_body(req: &Request) -> Result<Value, String> {
     serde_json::from_slice(&req.body).map_err(|e| format!("request body is not valid JSON: {e}"))
 }
@@ -912,7 +974,11 @@ fn api_load(s: &mut TcpStream, req: &Request, shared: &Shared) -> std::io::Resul
     match colslam_scene::read_model(&path) {
         Ok(rec) => {
             let (points, cameras) = (rec.num_points3d(), rec.num_registered_images());
-            shared.update(|st| st.set_reconstruction(&rec, &path.display().to_string()));
+            let images = crate::frames::ImageSource::discover(&path, &rec);
+            shared.update(|st| {
+                st.set_reconstruction(&rec, &path.display().to_string());
+                st.set_images(images);
+            });
             respond_json(s, 200, &json!({ "ok": true, "points": points, "cameras": cameras }))
         }
         Err(e) => respond_error(s, 400, &format!("cannot load model: {e}")),

@@ -31,13 +31,21 @@
 
 mod demo;
 mod export;
+mod frames;
+mod gt;
 mod http;
 mod live;
+pub mod screenshot;
 mod state;
 mod types;
 
 pub use demo::demo_reconstruction;
 pub use export::{ExportError, ExportFormat, export_reconstruction, tum_trajectory};
+pub use frames::{
+    ImageSource, ImagesOptionError, KEYPOINT_OUTLIER, KEYPOINT_TRIANGULATED, KEYPOINT_UNMATCHED, PictureError,
+    camera_detail, load_picture,
+};
+pub use gt::GroundTruthLayer;
 pub use http::REQUEST_DEADLINE;
 /// The server's request parser, as a pure function on bytes (for fuzzing).
 #[doc(hidden)]
@@ -153,6 +161,18 @@ impl ViewerHandle {
         self.shared.update(|st| st.apply(update));
     }
 
+    /// Says where the shown model's images are (the frame panel's
+    /// pictures); call after the model was set.
+    pub fn set_images(&self, images: ImageSource) {
+        self.shared.update(|st| st.set_images(images));
+    }
+
+    /// Shows the comparison of the shown model with a ground truth (`None`
+    /// removes it); call after the model was set.
+    pub fn set_ground_truth(&self, layer: Option<GroundTruthLayer>) {
+        self.shared.update(|st| st.set_ground_truth(layer));
+    }
+
     /// Number of points and cameras currently held.
     pub fn counts(&self) -> (usize, usize) {
         self.shared.lock().counts()
@@ -236,6 +256,16 @@ impl Viewer {
     /// See [`ViewerHandle::set_reconstruction_from`].
     pub fn set_reconstruction_from(&self, rec: &Reconstruction, source: &str) {
         self.handle.set_reconstruction_from(rec, source);
+    }
+
+    /// See [`ViewerHandle::set_images`].
+    pub fn set_images(&self, images: ImageSource) {
+        self.handle.set_images(images);
+    }
+
+    /// See [`ViewerHandle::set_ground_truth`].
+    pub fn set_ground_truth(&self, layer: Option<GroundTruthLayer>) {
+        self.handle.set_ground_truth(layer);
     }
 
     /// See [`ViewerHandle::sync_reconstruction`].
@@ -334,3 +364,5 @@ pub fn downscale_for_view(image: &Image, max_width: usize) -> (Image, f32) {
 
 #[cfg(test)]
 mod tests;
+#[cfg(test)]
+mod tests_frames;

@@ -7,6 +7,8 @@
 //! * `epoch` changes when the whole map is replaced (a loaded model, a reset);
 //!   a client on an older epoch gets a full snapshot, never a delta.
 
+use crate::frames::ImageSource;
+use crate::gt::GroundTruthLayer;
 use crate::types::{FrameUpdate, KeyframeUpdate, MapDelta, RunState, Summary, ViewerCamera, ViewerPoint, ViewerUpdate};
 use colslam_image::Image;
 use colslam_scene::Reconstruction;
@@ -61,8 +63,14 @@ pub(crate) struct State {
     run: Stamped<RunState>,
     /// Where the shown model came from ("live", a folder path, or empty).
     source: Stamped<String>,
-    /// The last full reconstruction given (for export).
+    /// The last full reconstruction given (for export, the frame panel's
+    /// keypoints and pictures).
     pub model: Option<Arc<Reconstruction>>,
+    /// Where the loaded model's images are (`None`: none looked for, e.g. a
+    /// live map).
+    images: Stamped<Option<Arc<ImageSource>>>,
+    /// The loaded model compared with a ground truth.
+    ground_truth: Stamped<Option<GroundTruthLayer>>,
     /// Whether a run controller is attached (Run enabled in the page).
     pub has_controller: bool,
     /// Set when the server shuts down; wakes and ends the event streams.
@@ -92,6 +100,8 @@ impl State {
         self.status.version = v;
         self.run.version = v;
         self.source.version = v;
+        self.images.version = v;
+        self.ground_truth.version = v;
         if let Some(f) = &mut self.frame {
             f.version = v;
         }
@@ -129,6 +139,26 @@ impl State {
         self.summary = Stamped { value: Summary::of(rec), version: v };
         self.source = Stamped { value: source.to_string(), version: v };
         self.model = Some(Arc::new(rec.clone()));
+        // A new model's images and ground truth are given after it, if any.
+        self.images = Stamped { value: None, version: v };
+        self.ground_truth = Stamped { value: None, version: v };
+    }
+
+    /// Sets where the shown model's images are.
+    pub fn set_images(&mut self, images: ImageSource) {
+        let v = self.bump();
+        self.images = Stamped { value: Some(Arc::new(images)), version: v };
+    }
+
+    /// Sets (or clears) the ground-truth layer of the shown model.
+    pub fn set_ground_truth(&mut self, layer: Option<GroundTruthLayer>) {
+        let v = self.bump();
+        self.ground_truth = Stamped { value: layer, version: v };
+    }
+
+    /// The shown model and where its images are, for the frame panel.
+    pub fn model_and_images(&self) -> (Option<Arc<Reconstruction>>, Option<Arc<ImageSource>>) {
+        (self.model.clone(), self.images.value.clone())
     }
 
     /// Brings the map in line with `rec` by a diff: changed or new points and
@@ -227,6 +257,8 @@ impl State {
                 self.summary = Stamped { value: Summary::default(), version: v };
                 self.source = Stamped { value: String::new(), version: v };
                 self.model = None;
+                self.images = Stamped { value: None, version: v };
+                self.ground_truth = Stamped { value: None, version: v };
             }
             ViewerUpdate::Frame(mut f) => {
                 let v = self.bump();
@@ -318,6 +350,13 @@ impl State {
         }
         if newer(self.source.version) {
             out.insert("source".into(), json!(self.source.value));
+        }
+        if newer(self.images.version) {
+            let images = self.images.value.as_ref().map(|i| json!({"available": i.available(), "note": i.describe()}));
+            out.insert("images".into(), images.unwrap_or(Value::Null));
+        }
+        if newer(self.ground_truth.version) {
+            out.insert("gt".into(), self.ground_truth.value.as_ref().map_or(Value::Null, GroundTruthLayer::to_json));
         }
         if full {
             out.insert("has_controller".into(), json!(self.has_controller));

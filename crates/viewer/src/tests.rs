@@ -9,27 +9,27 @@ use std::net::{Ipv4Addr, TcpStream};
 use std::sync::Mutex;
 use std::time::{Duration, Instant};
 
-fn start() -> Viewer {
+pub(crate) fn start() -> Viewer {
     Viewer::start(ViewerOptions { bind: IpAddr::V4(Ipv4Addr::LOCALHOST), port: 0, ..Default::default() })
         .expect("start viewer")
 }
 
 /// Sends raw bytes, returns (status, body).
-fn raw(v: &Viewer, request: &[u8]) -> (u16, Vec<u8>) {
+pub(crate) fn raw(v: &Viewer, request: &[u8]) -> (u16, Vec<u8>) {
     let (status, _, body) = raw_to(v.local_addr(), request);
     (status, body)
 }
 
-fn get(v: &Viewer, path: &str) -> (u16, Vec<u8>) {
+pub(crate) fn get(v: &Viewer, path: &str) -> (u16, Vec<u8>) {
     raw(v, format!("GET {path} HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n").as_bytes())
 }
 
-fn get_json(v: &Viewer, path: &str) -> (u16, Value) {
+pub(crate) fn get_json(v: &Viewer, path: &str) -> (u16, Value) {
     let (code, body) = get(v, path);
     (code, serde_json::from_slice(&body).expect("json body"))
 }
 
-fn post(v: &Viewer, path: &str, body: &str) -> (u16, Value) {
+pub(crate) fn post(v: &Viewer, path: &str, body: &str) -> (u16, Value) {
     let req = format!(
         "POST {path} HTTP/1.1\r\nHost: localhost:1\r\nContent-Type: application/json\r\nContent-Length: {}\r\n\r\n{body}",
         body.len()

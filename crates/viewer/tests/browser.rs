@@ -68,6 +68,76 @@ fn screenshots_stay_out_of_the_tree_unless_asked() {
     assert_eq!(screenshot_dir(Some("/abs/dir".into()), root, scratch), Path::new("/abs/dir"));
 }
 
+/// What the frame panel of the loaded model must show, and the ground truth
+/// the "gt" step gives it.
+struct FramePanel {
+    config: serde_json::Value,
+    gt: colslam_viewer::GroundTruthLayer,
+}
+
+/// Prepares the browser test's model for the frame panel: moves one
+/// observation of the latest camera 10 px off (an outlier), writes every
+/// image to `images` (blue channel = 20 x registration rank), and works out
+/// what the page must show: keypoint counts from the model's structure,
+/// observations of the clicked camera, the timeline's camera, and the ATE of
+/// `colslam eval` (the library) on the model's TUM export against a ground
+/// truth made from the cameras.
+fn frame_panel_expectations(rec: &mut colslam_scene::Reconstruction, images: &Path) -> FramePanel {
+    use colslam_scene::ImageId;
+    let ids: Vec<ImageId> = rec.registered_image_ids().to_vec();
+    let latest = *ids.last().expect("cameras");
+    let slot = rec.image(latest).expect("latest").points2d.iter().position(|p| p.point3d_id.is_some()).expect("obs");
+    let xy = rec.image(latest).expect("latest").points2d[slot].xy + colslam_geometry::Vec2::new(10.0, 0.0);
+    rec.set_point2d_xy(latest, slot as u32, xy).expect("move keypoint");
+    std::fs::create_dir_all(images).expect("images dir");
+    for (rank, id) in ids.iter().enumerate() {
+        let mut img = colslam_image::Image::new(96, 72, 3);
+        for y in 0..72 {
+            for x in 0..96 {
+                img.set(x, y, 0, (x * 2) as u8);
+                img.set(x, y, 1, (y * 3) as u8);
+                img.set(x, y, 2, (20 * rank) as u8);
+            }
+        }
+        img.write_png(&images.join(&rec.image(*id).expect("image").name)).expect("write image");
+    }
+    let observations =
+        |id: ImageId| rec.image(id).expect("image").points2d.iter().filter(|p| p.point3d_id.is_some()).count();
+    let kps = rec.image(latest).expect("latest").points2d.len();
+    let click = ids[2];
+    let timeline_rank = 4;
+    // Ground truth: the camera centres in another frame and scale, two moved.
+    let (stamps, centres): (Vec<f64>, Vec<colslam_geometry::Rigid3>) = ids
+        .iter()
+        .enumerate()
+        .map(|(rank, id)| {
+            let world_from_cam = rec.image(*id).expect("image").cam_from_world.inverse();
+            let mut p = world_from_cam;
+            p.translation = p.translation * 3.0 + colslam_geometry::Vec3::new(5.0, -1.0, 2.0);
+            if rank % 3 == 1 {
+                p.translation.z += 0.2;
+            }
+            (rank as f64, p)
+        })
+        .unzip();
+    let gt = colslam_eval::Trajectory::new(stamps, centres);
+    let dir = tempfile::tempdir().expect("tempdir");
+    gt.write_tum(&dir.path().join("gt.tum")).expect("gt");
+    std::fs::write(dir.path().join("est.tum"), colslam_viewer::tum_trajectory(rec)).expect("est");
+    let report =
+        colslam_eval::evaluate_files(&dir.path().join("gt.tum"), &dir.path().join("est.tum"), &Default::default())
+            .expect("colslam eval");
+    let layer = colslam_viewer::GroundTruthLayer::compute(rec, &gt, "gt.tum").expect("layer");
+    let config = json!({
+        "latest": {"id": latest.0, "blue": 20 * (ids.len() - 1),
+                   "counts": {"triangulated": observations(latest) - 1, "outlier": 1, "unmatched": kps - observations(latest)}},
+        "click": {"id": click.0, "observations": observations(click)},
+        "timeline": {"rank": timeline_rank, "id": ids[timeline_rank].0},
+        "gt": {"ate": report.ate_rmse, "segments": ids.len() - 1},
+    });
+    FramePanel { config, gt: layer }
+}
+
 fn chromium() -> Option<PathBuf> {
     let p =
         std::env::var_os("COLSLAM_CHROMIUM").map(PathBuf::from).unwrap_or_else(|| PathBuf::from("/usr/bin/chromium"));
@@ -175,6 +245,9 @@ const LARGE_CAMERAS: usize = 2_000;
 /// Generous bound on the page's rebuild of the large map (JavaScript work:
 /// clip, colours, frustums); a typical machine takes far less.
 const LARGE_MAX_REBUILD_MS: u32 = 3000;
+/// Generous bound on picking a camera by click on the large map (one pass
+/// over the 2,000 cameras, none over the points).
+const LARGE_MAX_PICK_MS: u32 = 100;
 
 /// 2,000 cameras on a helix and 100,000 points around it, each observed by
 /// 3 consecutive cameras.
@@ -234,7 +307,8 @@ fn browser_end_to_end() {
 
     let work = tempfile::tempdir().expect("tempdir");
     let model_dir = work.path().join("model");
-    let rec = demo_reconstruction(8, 600, 7).expect("demo");
+    let mut rec = demo_reconstruction(8, 600, 7).expect("demo");
+    let frames = frame_panel_expectations(&mut rec, &work.path().join("images"));
     colslam_scene::write_model(&rec, &model_dir, colslam_scene::ModelFormat::Binary).expect("write model");
     // Expected counts: camera order = image id - 1 (registered in id order);
     // a point is introduced at its smallest observer's order.
@@ -269,7 +343,9 @@ fn browser_end_to_end() {
                      "track_lines": clip_track_lines},
         },
         "restart": {"points": RESTART_POINTS, "cameras": RESTART_CAMERAS},
-        "large": {"points": LARGE_POINTS, "cameras": LARGE_CAMERAS, "max_rebuild_ms": LARGE_MAX_REBUILD_MS},
+        "frames": frames.config,
+        "large": {"points": LARGE_POINTS, "cameras": LARGE_CAMERAS, "max_rebuild_ms": LARGE_MAX_REBUILD_MS,
+                  "max_pick_ms": LARGE_MAX_PICK_MS},
         "live": {
             "cameras": LIVE_KEYFRAMES, "points": LIVE_POINTS, "last_keyframe_id": LIVE_KEYFRAMES,
             "last_frame": LIVE_KEYFRAMES * FRAMES_PER_KEYFRAME, "flow_lines": FLOW_LINES,
@@ -355,6 +431,10 @@ fn browser_end_to_end() {
                 viewer.set_reconstruction(&demo_reconstruction(RESTART_CAMERAS, RESTART_POINTS, 3).expect("demo"));
                 writeln!(stdin, "DONE restart").expect("ack");
             }
+            Some("gt") => {
+                viewer.set_ground_truth(Some(frames.gt.clone()));
+                writeln!(stdin, "DONE gt").expect("ack");
+            }
             Some("live") => {
                 feed_live_run(&viewer);
                 writeln!(stdin, "DONE live").expect("ack");
@@ -368,8 +448,48 @@ fn browser_end_to_end() {
     let log = log.join().unwrap_or_default();
     eprintln!("{log}");
     assert!(status.success() && result == "ALL OK", "browser scenarios failed ({result}):\n{log}");
-    for name in ["viewer-reconstruction.png", "viewer-frame-view.png", "viewer-overview.png", "viewer-track.png"] {
+    for name in [
+        "viewer-camera-panel.png",
+        "viewer-ground-truth.png",
+        "viewer-reconstruction.png",
+        "viewer-frame-view.png",
+        "viewer-overview.png",
+        "viewer-track.png",
+    ] {
         let png = std::fs::read(shots.join(name)).expect("screenshot written");
         assert!(png.starts_with(b"\x89PNG"), "{name} is a PNG");
     }
+}
+
+/// `colslam view MODEL --screenshot`'s library side: headless Chromium draws
+/// the page in screenshot mode (no event stream) and the picture is written
+/// once the page says the scene and the camera panel are drawn; the same
+/// input gives the same bytes.
+#[test]
+fn screenshot_mode_writes_the_drawn_page() {
+    let Some(chromium) = chromium() else {
+        return skip_or_fail("chromium not found at /usr/bin/chromium (or COLSLAM_CHROMIUM)");
+    };
+    let work = tempfile::tempdir().expect("tempdir");
+    let model_dir = work.path().join("model");
+    let mut rec = demo_reconstruction(8, 600, 7).expect("demo");
+    frame_panel_expectations(&mut rec, &work.path().join("images"));
+    colslam_scene::write_model(&rec, &model_dir, colslam_scene::ModelFormat::Binary).expect("write model");
+    let viewer = Viewer::start(ViewerOptions { port: 0, ..Default::default() }).expect("viewer");
+    viewer.set_reconstruction_from(&rec, "model");
+    viewer.set_images(colslam_viewer::ImageSource::discover(&model_dir, &rec));
+    let size = (640, 400);
+    let shots: Vec<Vec<u8>> = ["a.png", "b.png"]
+        .iter()
+        .map(|name| {
+            let out = work.path().join(name);
+            colslam_viewer::screenshot::capture(&chromium, &viewer.url(), size, &out).expect("screenshot");
+            std::fs::read(&out).expect("read screenshot")
+        })
+        .collect();
+    assert!(shots[0] == shots[1], "the same model gave two different pictures");
+    let img = colslam_image::Image::decode(&shots[0], Path::new("a.png")).expect("a PNG");
+    assert_eq!((img.width(), img.height()), (640, 400));
+    let colours: std::collections::HashSet<Vec<u8>> = img.data().chunks(img.channels()).map(<[u8]>::to_vec).collect();
+    assert!(colours.len() > 50, "a near-uniform picture ({} colours)", colours.len());
 }

@@ -13,10 +13,12 @@ const model = {
   cameras: new Map(),  // image id -> camera JSON (c, r, w, h, fx, fy, cx, cy, order, name)
   frame: null, keyframe: null, summary: null, source: '', hasController: false,
   run: { state: 'idle', message: '' },
+  images: null,        // {available, note} for a loaded model; null for a live map
+  gt: null,            // ground-truth layer: {ate_rmse, matched, scale, path, ids, errors}
 };
 const view = {
   selected: -1, clipStart: 0, clipEnd: 0, clipFollow: true,
-  showPath: true, showCams: true, frustumScale: 1, pointSize: 3, bg: [0.08, 0.09, 0.11],
+  showPath: true, showCams: true, showGrid: true, showGt: true, frustumScale: 1, pointSize: 3, bg: [0.08, 0.09, 0.11],
   target: [0, 0, 0], dist: 10, yaw: 0, pitch: 0.3, up: [0, -1, 0], fwd: [0, 0, 1], radius: 1,
   fitted: false,
   // Until the user moves the view, it is refitted as the map grows (live runs).
@@ -24,7 +26,7 @@ const view = {
   frustumBase: 0.04,
 };
 // What the last rebuild drew (CPU side, also used for picking).
-let drawn = { pts: new Float32Array(0), ids: [], nPts: 0, nCams: 0, nPath: 0, nTrack: 0, camsSorted: [] };
+let drawn = { pts: new Float32Array(0), ids: [], tracks: [], nPts: 0, nCams: 0, nPath: 0, nTrack: 0, camsSorted: [], clipped: [] };
 
 function applyUpdate(msg) {
   if (msg.full) {
@@ -32,7 +34,7 @@ function applyUpdate(msg) {
     model.points.clear();
     model.cameras.clear();
     model.hasController = !!msg.has_controller;
-    if (newModel) { view.fitted = false; view.userMoved = false; }
+    if (newModel) { view.fitted = false; view.userMoved = false; resetCameraSelection(); }
   }
   model.epoch = msg.epoch;
   model.version = msg.version;
@@ -60,8 +62,11 @@ function applyUpdate(msg) {
   if ('status' in msg) $('status-line').textContent = msg.status || '';
   if ('run' in msg) model.run = msg.run;
   if ('source' in msg) { model.source = msg.source; $('source').textContent = msg.source || '–'; }
+  if ('images' in msg) model.images = msg.images;
+  if ('gt' in msg) showGroundTruth(msg.gt);
   updateRunButtons();
-  if (p || msg.cameras || msg.removed_points || msg.removed_cameras || msg.full) scheduleRebuild();
+  if (p || msg.cameras || msg.removed_points || msg.removed_cameras || msg.full || 'gt' in msg) scheduleRebuild();
+  if ('images' in msg || 'frame' in msg || 'keyframe' in msg || msg.full) updatePanels();
   setStat('epoch', model.epoch);
   setStat('version', model.version);
   setStat('updates', model.updates);
@@ -195,7 +200,7 @@ function rebuild(withPoints = true) {
   let pos = null, col = null;
   if (withPoints) {
     ({ pos, col } = buildPoints(fullRange, inClip));
-    if ((!view.fitted || !view.userMoved) && (model.points.size || nCam)) { fitView(); view.fitted = true; }
+    if ((!view.fitted || !view.userMoved) && (model.points.size || nCam)) { fitView(); view.fitted = true; buildGrid(); }
   }
   drawn.camsSorted = cams;
   const clipped = [];
@@ -226,7 +231,7 @@ function rebuild(withPoints = true) {
   v = 0;
   for (let i = 0; i < pathN; i++) {
     const [a, ra] = clipped[i], [b, rb] = clipped[i + 1];
-    push(pp, pc, a.c, recency(ra, nCam)); push(pp, pc, b.c, recency(rb, nCam));
+    push(pp, pc, a.c, pathColor(a, ra, nCam)); push(pp, pc, b.c, pathColor(b, rb, nCam));
   }
   drawn.nPath = view.showPath ? pathN : 0;
   // Track lines: selected point to every observing camera inside the clip.
@@ -246,6 +251,8 @@ function rebuild(withPoints = true) {
   }
   drawn.nTrack = tp.length / 6;
   gpu.upload(pos, col, fr, fc, pp, pc, new Float32Array(tp), new Float32Array(tc));
+  drawn.clipped = clipped;
+  rebuildCameraLayers();
 
   setStat('points', model.points.size);
   setStat('cameras', nCam);
@@ -261,7 +268,7 @@ function rebuild(withPoints = true) {
 // observer only show when nothing is clipped).
 function buildPoints(fullRange, inClip) {
   const n = model.points.size;
-  const pos = new Float32Array(3 * n), col = new Uint8Array(3 * n), ids = new Array(n);
+  const pos = new Float32Array(3 * n), col = new Uint8Array(3 * n), ids = new Array(n), tracks = new Array(n);
   let k = 0, maxId = -1;
   for (const [id, p] of model.points) {
     if (id > maxId) maxId = id;
@@ -270,9 +277,9 @@ function buildPoints(fullRange, inClip) {
     if (intro === Infinity ? !fullRange : !inClip(intro)) continue;
     pos[3 * k] = p.x; pos[3 * k + 1] = p.y; pos[3 * k + 2] = p.z;
     col[3 * k] = p.r; col[3 * k + 1] = p.g; col[3 * k + 2] = p.b;
-    ids[k] = id; k++;
+    ids[k] = id; tracks[k] = p.track; k++;
   }
-  drawn.pts = pos.subarray(0, 3 * k); drawn.ids = ids.slice(0, k); drawn.nPts = k;
+  drawn.pts = pos.subarray(0, 3 * k); drawn.ids = ids.slice(0, k); drawn.tracks = tracks.slice(0, k); drawn.nPts = k;
   $('track-range').max = Math.max(0, maxId);
   return { pos: drawn.pts, col: col.subarray(0, 3 * k) };
 }
@@ -378,7 +385,7 @@ const gpu = (() => {
   if (!gl) {
     $('gl-note').hidden = false;
     $('gl-note').textContent = 'WebGL is not available in this browser: the 3D view is off, the rest works.';
-    return { gl: null, upload() {}, draw() {} };
+    return { gl: null, upload() {}, uploadLayers() {}, draw() {} };
   }
   setStat('webgl', 1);
   const vs = `attribute vec3 pos; attribute vec3 col; uniform mat4 mvp; uniform float size; varying vec3 vcol;
@@ -399,7 +406,7 @@ const gpu = (() => {
   }
   const progPts = program(fsPts), progLines = program(fsLines);
   const mk = () => ({ pos: gl.createBuffer(), col: gl.createBuffer(), n: 0, norm: false });
-  const bufs = { pts: mk(), cams: mk(), path: mk(), track: mk() };
+  const bufs = { pts: mk(), cams: mk(), path: mk(), track: mk(), grid: mk(), gt: mk(), hl: mk(), cur: mk() };
   function set(b, pos, col, normalized) {
     gl.bindBuffer(gl.ARRAY_BUFFER, b.pos); gl.bufferData(gl.ARRAY_BUFFER, pos, gl.STATIC_DRAW);
     gl.bindBuffer(gl.ARRAY_BUFFER, b.col); gl.bufferData(gl.ARRAY_BUFFER, col, gl.STATIC_DRAW);
@@ -412,6 +419,11 @@ const gpu = (() => {
   }
   return {
     gl,
+    // Layers of the camera section (grid and axes, ground truth, the current
+    // camera's frustum and observed points): [positions, colours] or null.
+    uploadLayers(layers) {
+      for (const k of ['grid', 'gt', 'hl', 'cur']) if (layers[k]) set(bufs[k], layers[k][0], layers[k][1], false);
+    },
     upload(pp, pc, fp, fc, cp, cc, tp, tc) {
       if (pp) set(bufs.pts, pp, pc, true);
       set(bufs.cams, fp, fc, false); set(bufs.path, cp, cc, false); set(bufs.track, tp, tc, false);
@@ -427,9 +439,17 @@ const gpu = (() => {
       // One draw call per kind.
       gl.useProgram(progPts.p); gl.uniformMatrix4fv(progPts.mvp, false, m); gl.uniform1f(progPts.size, view.pointSize * dpr);
       if (bufs.pts.n) { bind(bufs.pts); gl.drawArrays(gl.POINTS, 0, bufs.pts.n); }
+      if (bufs.hl.n) {
+        // Observed points of the current camera, over the others.
+        gl.disable(gl.DEPTH_TEST); gl.uniform1f(progPts.size, (view.pointSize + 2) * dpr);
+        bind(bufs.hl); gl.drawArrays(gl.POINTS, 0, bufs.hl.n); gl.enable(gl.DEPTH_TEST);
+      }
       gl.useProgram(progLines.p); gl.uniformMatrix4fv(progLines.mvp, false, m); gl.uniform1f(progLines.size, 1);
       if (view.showCams && bufs.cams.n) { bind(bufs.cams); gl.drawArrays(gl.LINES, 0, bufs.cams.n); }
       if (view.showPath && bufs.path.n) { bind(bufs.path); gl.drawArrays(gl.LINES, 0, bufs.path.n); }
+      if (view.showGrid && bufs.grid.n) { bind(bufs.grid); gl.drawArrays(gl.LINES, 0, bufs.grid.n); }
+      if (view.showGt && bufs.gt.n) { bind(bufs.gt); gl.drawArrays(gl.LINES, 0, bufs.gt.n); }
+      if (bufs.cur.n) { gl.disable(gl.DEPTH_TEST); bind(bufs.cur); gl.drawArrays(gl.LINES, 0, bufs.cur.n); gl.enable(gl.DEPTH_TEST); }
       if (bufs.track.n) { gl.disable(gl.DEPTH_TEST); bind(bufs.track); gl.drawArrays(gl.LINES, 0, bufs.track.n); }
     },
   };
@@ -440,7 +460,7 @@ function requestDraw() {
   drawQueued = true;
   requestAnimationFrame(() => { drawQueued = false; gpu.draw(); });
 }
-window.addEventListener('resize', () => { requestDraw(); drawFlow(); });
+window.addEventListener('resize', () => { requestDraw(); drawFlow(); drawKeypoints(); });
 
 // ---------------------------------------------------------------- mouse
 (() => {
@@ -473,6 +493,7 @@ window.addEventListener('resize', () => { requestDraw(); drawFlow(); });
 // PICK_RADIUS_PX) becomes the selected track.
 const PICK_RADIUS_PX = 12;
 function pick(e) {
+  if (pickCamera(e)) return;
   const c = $('gl'), r = c.getBoundingClientRect();
   const m = viewProj(r.width / r.height);
   const mx = e.clientX - r.left, my = e.clientY - r.top;
@@ -610,10 +631,387 @@ async function fetchMaxFrames() {
   } catch (e) { $('max-bound').textContent = 'bound unknown: ' + e.message; $('max-bound').setAttribute('data-bound', '-1'); }
 }
 
+// ================================================================ cameras
+// Selection, the camera frame panel, timeline, ground grid, ground-truth
+// layer and screenshot mode. The current camera is the one clicked or set
+// by the timeline, else the latest registered one; its image and keypoints
+// (loaded models) fill the camera panel, its observed points are
+// highlighted and its numbers fill the info box.
+const SCREENSHOT = new URLSearchParams(location.search).get('screenshot') === '1';
+const cur = {
+  id: -1,            // the current camera's image id (-1: none)
+  explicit: false,   // chosen by a click or the timeline (else: the latest)
+  detail: null,      // /api/camera answer for `id`
+  imageId: -1,       // camera whose picture is shown
+  playing: null,     // timeline timer
+  seq: 0,            // request counter: stale answers are dropped
+};
+const KP_COLORS = ['#4aa8ff', '#2ee66b', '#ff4040']; // unmatched, triangulated, outlier (server's states)
+const PLAY_INTERVAL_MS = 250;
+
+function resetCameraSelection() {
+  cur.id = -1; cur.explicit = false; cur.detail = null; cur.imageId = -1;
+  stopPlay();
+  const img = $('cam-img');
+  if (img.src && img.src.startsWith('blob:')) URL.revokeObjectURL(img.src);
+  img.removeAttribute('src');
+  $('cam-panel').removeAttribute('data-image-id');
+}
+
+// Panels: a loaded model shows the camera panel; the live panels (last
+// keyframe, current frame) only show once a live run fed them.
+function updatePanels() {
+  const fv = $('frame-view');
+  const live = fv.hasAttribute('data-frame-index') || fv.hasAttribute('data-keyframe-id');
+  const camPanel = model.images != null || (cur.explicit && cur.id >= 0);
+  $('cam-panel').hidden = !camPanel;
+  $('kf-panel').hidden = camPanel && !live;
+  $('cur-panel').hidden = camPanel && !live;
+  drawKeypoints();
+}
+
+// The cameras changed (rebuild): keep the current camera valid, move the
+// timeline, and rebuild the layers that depend on it.
+function rebuildCameraLayers() {
+  const cams = drawn.camsSorted;
+  const tl = $('timeline');
+  tl.max = Math.max(0, cams.length - 1);
+  if (cur.explicit && !model.cameras.has(cur.id)) cur.explicit = false;
+  const latest = cams.length ? cams[cams.length - 1].id : -1;
+  const id = cur.explicit ? cur.id : latest;
+  if (id !== cur.id) setCurrent(id, cur.explicit); else uploadCameraLayers();
+  updatePanels();
+}
+
+function rankOf(id) { return drawn.camsSorted.findIndex((c) => c.id === id); }
+
+// Makes camera `id` current (explicit: chosen by the user).
+function setCurrent(id, explicit) {
+  cur.id = model.cameras.has(id) ? id : -1;
+  cur.explicit = explicit && cur.id >= 0;
+  const rank = rankOf(cur.id);
+  if (rank >= 0) $('timeline').value = rank;
+  const c = model.cameras.get(cur.id);
+  $('timeline-label').textContent = c ? label(c) : '–';
+  setStat('current-camera', cur.id);
+  setStat('timeline', rank);
+  uploadCameraLayers();
+  showCameraInfo();
+  loadCameraDetail();
+  updatePanels();
+}
+
+// The current frustum, and the observed points of a camera the user chose
+// (the latest camera of a growing map is not highlighted: its points would
+// hide the colours), drawn over the rest. O(drawn points) per change of the
+// chosen camera, never per mouse move.
+function uploadCameraLayers() {
+  const c = model.cameras.get(cur.id);
+  const hp = [], hc = [];
+  if (c && cur.explicit) {
+    const P = drawn.pts;
+    for (let i = 0; i < drawn.nPts; i++) {
+      if (!drawn.tracks[i].includes(cur.id)) continue;
+      hp.push(P[3 * i], P[3 * i + 1], P[3 * i + 2]); hc.push(1, 0.2, 1);
+    }
+  }
+  const fp = [], fc = [];
+  if (c && view.showCams) {
+    const s = 1.6 * view.frustumScale * view.frustumBase;
+    const corners = [[0, 0], [c.w, 0], [c.w, c.h], [0, c.h]].map(([u, w]) => {
+      const x = (u - c.cx) / c.fx * s, y = (w - c.cy) / c.fy * s, z = s, r = c.r;
+      return [c.c[0] + r[0] * x + r[1] * y + r[2] * z, c.c[1] + r[3] * x + r[4] * y + r[5] * z, c.c[2] + r[6] * x + r[7] * y + r[8] * z];
+    });
+    for (let i = 0; i < 4; i++) {
+      fp.push(...c.c, ...corners[i], ...corners[i], ...corners[(i + 1) % 4]);
+      for (let j = 0; j < 4; j++) fc.push(1, 1, 1);
+    }
+  }
+  gpu.uploadLayers({ hl: [new Float32Array(hp), new Float32Array(hc)], cur: [new Float32Array(fp), new Float32Array(fc)] });
+  setStat('highlighted-points', hp.length / 3);
+  requestDraw();
+}
+
+// Counts from the page's own tracks (live maps have no server-side detail).
+function showCameraInfo() {
+  const c = model.cameras.get(cur.id);
+  const box = $('cam-info');
+  box.hidden = !c;
+  box.setAttribute('data-camera-id', c ? c.id : -1);
+  if (!c) return;
+  $('info-id').textContent = c.id;
+  $('info-name').textContent = c.name || '';
+  const d = cur.detail && cur.detail.id === c.id ? cur.detail : null;
+  const stamp = d && d.timestamp != null ? d.timestamp : null;
+  $('info-time').textContent = stamp != null ? 'time ' + stamp.toFixed(3) + ' s' : 'registration #' + c.order;
+  $('info-obs').textContent = d ? d.observations : (cur.explicit ? $('stats').dataset.highlightedPoints : '–');
+  $('info-err').textContent = d && d.mean_reproj_error != null ? fmt(d.mean_reproj_error, 3) + ' px' : '–';
+}
+
+// Keypoints and numbers of the current camera (loaded models), then its picture.
+async function loadCameraDetail() {
+  const id = cur.id, seq = ++cur.seq;
+  $('cam-title').textContent = id >= 0 ? '#' + id + ' ' + ((model.cameras.get(id) || {}).name || '') : '–';
+  if (id < 0 || model.images == null) { cur.detail = null; drawKeypoints(); return; }
+  screenshotStage('camera ' + id);
+  try {
+    const r = await fetch('/api/camera?id=' + id);
+    if (seq !== cur.seq) return;
+    cur.detail = r.ok ? await r.json() : null;
+  } catch (_) { cur.detail = null; }
+  if (seq !== cur.seq) return;
+  showCameraInfo();
+  drawKeypoints();
+  await loadCameraImage(id, seq);
+}
+
+async function loadCameraImage(id, seq) {
+  const note = $('cam-note'), img = $('cam-img'), panel = $('cam-panel');
+  if (!model.images || !model.images.available) {
+    if (img.src && img.src.startsWith('blob:')) URL.revokeObjectURL(img.src);
+    img.removeAttribute('src'); cur.imageId = -1;
+    note.textContent = 'No image: ' + ((model.images && model.images.note) || 'no images folder');
+    panel.setAttribute('data-image-id', -1);
+    drawKeypoints(); markDrawn();
+    return;
+  }
+  try {
+    screenshotStage('image ' + id);
+    // A POST: the server opens the file (or decodes the video frame).
+    const r = await fetch('/api/image', { method: 'POST', headers: { 'Content-Type': 'application/json' }, body: JSON.stringify({ id }) });
+    if (seq !== cur.seq) return;
+    if (!r.ok) {
+      let msg = 'HTTP ' + r.status;
+      try { msg = (await r.json()).error || msg; } catch (_) { /* keep the status */ }
+      throw new Error(msg);
+    }
+    const url = URL.createObjectURL(await r.blob());
+    if (seq !== cur.seq) { URL.revokeObjectURL(url); return; }
+    screenshotStage('picture ' + id);
+    await new Promise((resolve) => {
+      img.onload = resolve; img.onerror = resolve;
+      if (img.src && img.src.startsWith('blob:')) URL.revokeObjectURL(img.src);
+      img.src = url;
+    });
+    if (seq !== cur.seq) return;
+    cur.imageId = id; note.textContent = '';
+    panel.setAttribute('data-image-id', id);
+  } catch (e) {
+    if (seq !== cur.seq) return;
+    img.removeAttribute('src'); cur.imageId = -1;
+    note.textContent = 'No image: ' + e.message;
+    panel.setAttribute('data-image-id', -1);
+  }
+  drawKeypoints();
+  markDrawn();
+}
+
+// Keypoints over the picture (object-fit: contain), coloured by state. The
+// drawn counts go to data attributes for the tests.
+function drawKeypoints() {
+  const img = $('cam-img'), cv = $('cam-kp'), panel = $('cam-panel'), d = cur.detail;
+  const bw = img.clientWidth, bh = img.clientHeight;
+  const nw = (d && d.width) || img.naturalWidth || 1, nh = (d && d.height) || img.naturalHeight || 1;
+  const k = Math.min(bw / nw, bh / nh);
+  const w = Math.max(0, Math.round(nw * k)), h = Math.max(0, Math.round(nh * k));
+  cv.width = w; cv.height = h;
+  cv.style.left = (img.offsetLeft + (bw - w) / 2) + 'px'; cv.style.top = (img.offsetTop + (bh - h) / 2) + 'px';
+  const counts = [0, 0, 0];
+  if (d && d.id === cur.id && w > 0) {
+    const ctx = cv.getContext('2d');
+    const xy = d.keypoints.xy, st = d.keypoints.state, sx = w / d.width, sy = h / d.height;
+    const r = Math.max(1.5, Math.min(3, w / 300));
+    // One path per state: unmatched first, so the others stay on top.
+    for (const state of [0, 2, 1]) {
+      ctx.fillStyle = KP_COLORS[state];
+      ctx.beginPath();
+      for (let i = 0; i < st.length; i++) {
+        if (st[i] !== state) continue;
+        const x = xy[2 * i] * sx, y = xy[2 * i + 1] * sy;
+        ctx.moveTo(x + r, y); ctx.arc(x, y, r, 0, 2 * Math.PI);
+        counts[state]++;
+      }
+      ctx.fill();
+    }
+  }
+  const show = d && d.id === cur.id;
+  $('kp-tri').textContent = show ? counts[1] : '–';
+  $('kp-out').textContent = show ? counts[2] : '–';
+  $('kp-un').textContent = show ? counts[0] : '–';
+  panel.setAttribute('data-camera-id', show ? d.id : -1);
+  panel.setAttribute('data-kp-triangulated', counts[1]);
+  panel.setAttribute('data-kp-outlier', counts[2]);
+  panel.setAttribute('data-kp-unmatched', counts[0]);
+}
+
+// Click picking of cameras: the frustum's axis (centre to image centre)
+// nearest to the click in screen space, over the clipped cameras only.
+function pickCamera(e) {
+  if (!view.showCams) return false;
+  const cv = $('gl'), r = cv.getBoundingClientRect();
+  const m = viewProj(r.width / r.height);
+  const mx = e.clientX - r.left, my = e.clientY - r.top;
+  const toScreen = (x, y, z) => {
+    const w = m[3] * x + m[7] * y + m[11] * z + m[15];
+    if (w <= 0) return null;
+    return [((m[0] * x + m[4] * y + m[8] * z + m[12]) / w * 0.5 + 0.5) * r.width, (0.5 - (m[1] * x + m[5] * y + m[9] * z + m[13]) / w * 0.5) * r.height];
+  };
+  const s = view.frustumScale * view.frustumBase;
+  let best = -1, bestD = PICK_RADIUS_PX * PICK_RADIUS_PX;
+  for (const [c] of drawn.clipped) {
+    const a = toScreen(c.c[0], c.c[1], c.c[2]);
+    const b = toScreen(c.c[0] + c.r[2] * s, c.c[1] + c.r[5] * s, c.c[2] + c.r[8] * s);
+    if (!a || !b) continue;
+    const dx = b[0] - a[0], dy = b[1] - a[1], len2 = dx * dx + dy * dy;
+    const t = len2 > 0 ? Math.max(0, Math.min(1, ((mx - a[0]) * dx + (my - a[1]) * dy) / len2)) : 0;
+    const d = (a[0] + t * dx - mx) ** 2 + (a[1] + t * dy - my) ** 2;
+    if (d < bestD) { bestD = d; best = c.id; }
+  }
+  if (best < 0) return false;
+  stopPlay();
+  setCurrent(best, true);
+  return true;
+}
+
+// ---------------------------------------------------------------- timeline
+function stopPlay() {
+  if (cur.playing) clearInterval(cur.playing);
+  cur.playing = null;
+  $('play-btn').textContent = '▶';
+}
+$('timeline').addEventListener('input', (e) => {
+  const c = drawn.camsSorted[parseInt(e.target.value, 10)];
+  if (c) setCurrent(c.id, true);
+});
+$('play-btn').addEventListener('click', () => {
+  if (cur.playing) return stopPlay();
+  const cams = drawn.camsSorted;
+  if (!cams.length) return;
+  if (rankOf(cur.id) >= cams.length - 1) setCurrent(cams[0].id, true);
+  $('play-btn').textContent = '❚❚';
+  cur.playing = setInterval(() => {
+    const next = rankOf(cur.id) + 1;
+    if (next >= drawn.camsSorted.length) return stopPlay();
+    setCurrent(drawn.camsSorted[next].id, true);
+  }, PLAY_INTERVAL_MS);
+});
+
+// ---------------------------------------------------------------- grid and axes
+// A grid step of 1, 2 or 5 times a power of ten: about 8 cells across the scene.
+function niceStep(x) {
+  const p = Math.pow(10, Math.floor(Math.log10(x)));
+  const f = x / p;
+  return (f < 1.5 ? 1 : f < 3.5 ? 2 : f < 7.5 ? 5 : 10) * p;
+}
+// Ground grid perpendicular to the view's up direction, at the height of
+// the lowest 5 % of the scene, and the world axes (x red, y green, z blue).
+function buildGrid() {
+  const up = view.up, fwd = view.fwd, right = normalize(cross(fwd, up));
+  const hs = [];
+  const step0 = Math.max(1, Math.floor(model.points.size / 20000));
+  let i = 0;
+  for (const p of model.points.values()) if (i++ % step0 === 0) hs.push(dot([p.x, p.y, p.z], up));
+  for (const c of model.cameras.values()) hs.push(dot(c.c, up));
+  if (!hs.length) { gpu.uploadLayers({ grid: [new Float32Array(0), new Float32Array(0)] }); return; }
+  hs.sort((a, b) => a - b);
+  const level = hs[Math.floor(0.05 * (hs.length - 1))];
+  const step = niceStep(view.radius / 4);
+  const n = Math.max(2, Math.ceil(1.5 * view.radius / step));
+  const t = view.target;
+  // The grid centre: the view target dropped to the ground, snapped to the grid.
+  const cr = Math.round(dot(t, right) / step) * step, cf = Math.round(dot(t, fwd) / step) * step;
+  const at = (a, b) => add(add(scale(right, a), scale(fwd, b)), scale(up, level));
+  const gp = [], gc = [];
+  const line = (p, q, col) => { gp.push(...p, ...q); gc.push(...col, ...col); };
+  for (let k = -n; k <= n; k++) {
+    const col = k === 0 ? [0.42, 0.44, 0.5] : [0.26, 0.27, 0.31];
+    line(at(cr + k * step, cf - n * step), at(cr + k * step, cf + n * step), col);
+    line(at(cr - n * step, cf + k * step), at(cr + n * step, cf + k * step), col);
+  }
+  const L = step;
+  line([0, 0, 0], [L, 0, 0], [1, 0.2, 0.2]); line([0, 0, 0], [0, L, 0], [0.2, 1, 0.2]); line([0, 0, 0], [0, 0, L], [0.3, 0.5, 1]);
+  gpu.uploadLayers({ grid: [new Float32Array(gp), new Float32Array(gc)] });
+  view.gridStep = step; view.gridLines = gp.length / 6;
+  setStat('grid-step', step);
+  setStat('drawn-grid-lines', view.showGrid ? view.gridLines : 0);
+  showGridLabel();
+}
+function showGridLabel() {
+  const step = view.gridStep;
+  if (!step || !view.showGrid) { $('grid-label').textContent = ''; return; }
+  const metric = model.gt && model.gt.scale > 0 ? ' ≈ ' + fmtLength(step * model.gt.scale) : '';
+  $('grid-label').textContent = ` · grid ${+step.toPrecision(3)} model units${metric} · axes x y z`;
+}
+function fmtLength(m) { return m >= 1 ? m.toPrecision(3) + ' m' : m >= 0.01 ? (100 * m).toPrecision(3) + ' cm' : (1000 * m).toPrecision(3) + ' mm'; }
+$('show-grid').addEventListener('change', (e) => {
+  view.showGrid = e.target.checked;
+  setStat('drawn-grid-lines', view.showGrid ? (view.gridLines || 0) : 0);
+  showGridLabel(); requestDraw();
+});
+
+// ---------------------------------------------------------------- ground truth
+const ERR_LO = [0.16, 0.43, 0.94], ERR_HI = [0.94, 0.23, 0.16], NO_ERR = [0.5, 0.5, 0.5];
+let gtErrors = new Map(), gtMax = 0;
+function showGroundTruth(gt) {
+  model.gt = gt || null;
+  gtErrors = new Map();
+  gtMax = 0;
+  if (gt) gt.ids.forEach((id, i) => { gtErrors.set(id, gt.errors[i]); gtMax = Math.max(gtMax, gt.errors[i]); });
+  $('ate-row').hidden = !gt;
+  $('gt-legend').hidden = !gt;
+  const ate = $('sum-ate');
+  ate.textContent = gt ? fmtLength(gt.ate_rmse) + ' (' + gt.matched + ' poses)' : '–';
+  ate.setAttribute('data-ate', gt ? gt.ate_rmse : '');
+  $('gt-max').textContent = gt ? fmtLength(gtMax) : '–';
+  const gp = [], gc = [];
+  if (gt) for (let i = 0; i + 5 < gt.path.length; i += 3) { gp.push(...gt.path.slice(i, i + 6)); gc.push(0.85, 0.85, 0.85, 0.85, 0.85, 0.85); }
+  gpu.uploadLayers({ gt: [new Float32Array(gp), new Float32Array(gc)] });
+  setStat('gt-segments', gp.length / 6);
+  showGridLabel();
+}
+// Path colour: the error against the ground truth when there is one, else recency.
+function pathColor(c, rank, n) {
+  if (!model.gt || !view.showGt) return recency(rank, n);
+  const e = gtErrors.get(c.id);
+  if (e == null) return NO_ERR;
+  const t = gtMax > 0 ? e / gtMax : 0;
+  return [ERR_LO[0] + t * (ERR_HI[0] - ERR_LO[0]), ERR_LO[1] + t * (ERR_HI[1] - ERR_LO[1]), ERR_LO[2] + t * (ERR_HI[2] - ERR_LO[2])];
+}
+$('show-gt').addEventListener('change', (e) => { view.showGt = e.target.checked; rebuild(false); });
+
+// ---------------------------------------------------------------- screenshot mode
+// `?screenshot=1`: one state from /api/state, no event stream (it would keep
+// headless Chromium's virtual time from settling), everything drawn once,
+// then <body data-screenshot="drawn"> for the screenshot to wait for.
+// Chromium takes its picture when its virtual time is spent, so the mark
+// only has to be set once everything is drawn; its stage says how far a
+// page that never finishes got.
+let drawnMarked = false;
+function screenshotStage(stage) { if (SCREENSHOT) document.body.setAttribute('data-screenshot-stage', stage); }
+function markDrawn() {
+  if (!SCREENSHOT || drawnMarked) return;
+  drawnMarked = true;
+  gpu.draw();
+  screenshotStage('drawn');
+  document.body.setAttribute('data-screenshot', 'drawn');
+}
+async function screenshotMode() {
+  document.body.classList.add('screenshot');
+  screenshotStage('state');
+  try {
+    const r = await fetch('/api/state');
+    applyUpdate(await r.json());
+  } catch (e) { console.error('state', e); }
+  screenshotStage('scene');
+  rebuild();
+  // A loaded model: wait for the camera panel; otherwise the scene is all.
+  if (cur.id < 0 || model.images == null) markDrawn();
+}
+
 // Opened with the access token (a viewer bound off loopback): the server
 // has set it as a cookie, so the URL shown need not keep it.
-if (new URLSearchParams(location.search).has('token')) history.replaceState(null, '', location.pathname);
+if (new URLSearchParams(location.search).has('token')) history.replaceState(null, '', location.pathname + (SCREENSHOT ? '?screenshot=1' : ''));
 
 updateRunButtons();
 rebuild();
-connect();
+if (SCREENSHOT) screenshotMode(); else connect();

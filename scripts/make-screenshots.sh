@@ -8,12 +8,12 @@
 #
 #   scripts/make-screenshots.sh            # writes docs/screenshots/run-*.png
 # Environment: COLSLAM (binary; default target/release/colslam), COLSLAM_DATA
-# (datasets; default /work/shared/datasets), COLSLAM_CHROMIUM (Chromium),
+# (datasets; default ../shared/datasets beside the checkout), COLSLAM_CHROMIUM (Chromium),
 # SIZE (default 1400x900).
 set -euo pipefail
 root="$(cd "$(dirname "$0")/.." && pwd)"
 bin="${COLSLAM:-$root/target/release/colslam}"
-data="${COLSLAM_DATA:-/work/shared/datasets}"
+data="${COLSLAM_DATA:-$root/../shared/datasets}"
 size="${SIZE:-1400x900}"
 out="$root/docs/screenshots"
 [ -x "$bin" ] || { echo "no colslam binary at $bin (cargo build --release -p colslam, or set COLSLAM)" >&2; exit 1; }

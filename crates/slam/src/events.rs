@@ -344,3 +344,32 @@ impl Emitter {
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::frame::tests::frame_data;
+    use colslam_features::Match;
+
+    #[test]
+    fn a_frame_event_draws_every_verified_match_and_a_subsample_of_the_rest() {
+        let n = 1000;
+        let frame = frame_data(1, vec![colslam_geometry::Vec2::zeros(); n]);
+        let reference = frame_data(0, vec![colslam_geometry::Vec2::zeros(); n]);
+        let matches: Vec<Match> = (0..n as u32).map(|i| Match { query: i, train: i, distance: 0.0 }).collect();
+        let inliers: Vec<bool> = (0..n).map(|i| i % 3 != 0).collect();
+        let silent = Emitter::new(EventSink::none(), 7);
+        assert!(silent.flow(&frame, &reference, &matches, &inliers).is_none(), "nothing computed without a consumer");
+        let (sink, events) = EventSink::channel();
+        let mut e = Emitter::new(sink, 7);
+        let flow = e.flow(&frame, &reference, &matches, &inliers);
+        e.frame(&frame, flow, 0.1, false);
+        match events.try_recv() {
+            Ok(SlamEvent::FrameProcessed { num_matches, num_inliers, flow_lines, outlier_lines, .. }) => {
+                assert_eq!((num_matches, num_inliers, flow_lines.len()), (1000, 666, 666), "one line per inlier");
+                assert!((1..=MAX_OUTLIER_LINES).contains(&outlier_lines.len()), "{}", outlier_lines.len());
+            }
+            other => panic!("a frame event: {other:?}"),
+        }
+    }
+}

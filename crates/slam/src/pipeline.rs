@@ -455,6 +455,7 @@ impl Slam {
         let guard = decision.candidate && !self.opts.keyframes.allow_pure_rotation;
         let (geometry, frame_flow) =
             verify_frame(&self.emitter, &self.opts, &data, kf, &matches, 0.5 * (fx + fy), guard);
+        // With a viewer attached this includes every frame's verification.
         self.timings.add(Stage::KeyframeTest, t0.elapsed());
         // `failed`: a keyframe registration failed, the map could not explain
         // this frame (wrong matches, a cut, a collapsed map).

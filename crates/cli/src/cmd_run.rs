@@ -62,7 +62,7 @@ pub fn summary(r: &RunReport) -> String {
 /// order the summary lists them.
 const OUTPUT_FILES: [(&str, &str); 6] = [
     ("trajectory.tum", "every localised frame (TUM: time x y z qx qy qz qw, camera to world)"),
-    ("keyframes.tum", "the keyframes only"),
+    ("keyframes.tum", "the keyframes only, same format"),
     ("cameras, images, points3D", "the COLMAP model of the largest map (.bin; .txt with --text; others in maps/)"),
     ("points.ply", "its coloured point cloud"),
     ("camera.yaml", "the camera the run ended with (--camera reads it)"),
@@ -74,7 +74,10 @@ const OUTPUT_FILES: [(&str, &str); 6] = [
 /// export it (`gt`: the ground truth, when the run was given one).
 pub fn next_steps(out: &Path, gt: Option<&Path>) -> String {
     let o = shell_word(out);
-    let ply = shell_word(&out.join("points.ply"));
+    // The run already wrote the point cloud and the trajectory; the export
+    // a reader most likely wants is the model as COLMAP text, beside it.
+    let text_name = out.file_name().map_or_else(|| "model".into(), |n| n.to_string_lossy().into_owned()) + "-text";
+    let text = shell_word(&out.with_file_name(text_name));
     let gt = gt.map_or_else(|| "GT.txt".to_string(), shell_word);
     let est = shell_word(&out.join("trajectory.tum"));
     let mut s = format!("Output folder: {}\n", out.display());
@@ -84,7 +87,9 @@ pub fn next_steps(out: &Path, gt: Option<&Path>) -> String {
     s.push_str("Next steps:\n");
     s.push_str(&format!("  view      colslam view {o}\n"));
     s.push_str(&format!("  evaluate  colslam eval --gt {gt} --est {est}\n"));
-    s.push_str(&format!("  export    colslam export {o} -o {ply} -f ply   (-f tum: trajectory, -f txt: COLMAP text)"));
+    s.push_str(&format!(
+        "  export    colslam export {o} -o {text} -f txt   (-f ply: point cloud, -f tum: keyframe poses)"
+    ));
     s
 }
 
@@ -101,14 +106,12 @@ fn shell_word(p: &Path) -> String {
 /// script needs: the run's headline and its output folder.
 pub fn print_outcome(config: &RunConfig, out: &RunOutput, quiet: bool) {
     let r = &out.report;
-    let headline = format!("{}; outputs in {}", r.headline(), config.output.display());
     if quiet {
-        outln!("{headline}");
+        outln!("{}; outputs in {}", r.headline(), config.output.display());
         return;
     }
-    outln!("{}", summary(r));
-    outln!("");
-    outln!("Finished in {:.1} s: {headline}", r.wall_time_s);
+    outln!("{}\n", summary(r).trim_end());
+    outln!("Finished in {:.1} s: {}", r.wall_time_s, r.headline());
     outln!("{}", next_steps(&config.output, config.gt.as_deref()));
 }
 
@@ -141,7 +144,7 @@ mod tests {
         assert!(s.starts_with("Output folder: runs/desk\n"), "{s}");
         assert!(s.contains("colslam view runs/desk\n"), "{s}");
         assert!(s.contains("colslam eval --gt data/gt.txt --est runs/desk/trajectory.tum\n"), "{s}");
-        assert!(s.contains("colslam export runs/desk -o runs/desk/points.ply -f ply"), "{s}");
+        assert!(s.contains("colslam export runs/desk -o runs/desk-text -f txt"), "{s}");
         let s = next_steps(Path::new("my run"), None);
         assert!(
             s.contains("colslam view 'my run'\n") && s.contains("--gt GT.txt --est 'my run/trajectory.tum'"),

@@ -67,14 +67,15 @@ fn a_piped_run_prints_no_escape_codes_and_ends_with_next_steps() {
     }
     let view = format!("colslam view {out_s}\n");
     let eval = format!("colslam eval --gt {gt_s} --est {out_s}/trajectory.tum\n");
-    let export = format!("colslam export {out_s} -o {out_s}/points.ply -f ply");
+    let export = format!("colslam export {out_s} -o {out_s}-text -f txt");
     for cmd in [&view, &eval, &export] {
         assert!(stdout.contains(cmd.as_str()), "{cmd:?} in:\n{stdout}");
     }
     // The printed commands work as printed.
     let (evaluated, _) = ok(&["-q", "eval", "--gt", gt_s, "--est", &format!("{out_s}/trajectory.tum"), "--no-plot"]);
     assert!(evaluated.contains("ATE"), "{evaluated}");
-    ok(&["-q", "export", out_s, "-o", &format!("{out_s}/points.ply"), "-f", "ply"]);
+    ok(&["-q", "export", out_s, "-o", &format!("{out_s}-text"), "-f", "txt"]);
+    assert!(dir.path().join("out-text/images.txt").is_file(), "the export wrote the text model");
 
     // -q: nothing on stderr, one line on stdout (what a script needs).
     let again = dir.path().join("again");

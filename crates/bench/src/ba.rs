@@ -89,9 +89,6 @@ pub struct Args {
     /// Print one JSON object.
     #[arg(long)]
     pub json: bool,
-    /// Threads on both sides (default: the number of cores).
-    #[arg(long)]
-    pub threads: Option<usize>,
     /// Run one problem only.
     #[arg(long, value_enum)]
     pub only: Option<Which>,
@@ -414,13 +411,11 @@ fn run_ceres(dir: &Path, peer_loss: (&str, f64), threads: usize, repeats: usize)
     Ok((run, v))
 }
 
-/// Runs `bench ba`.
-pub fn run(args: &Args, quiet: bool) -> Result<()> {
+/// Runs `bench ba` with `threads` on both sides (the global `--threads`;
+/// `None`: the number of cores).
+pub fn run(args: &Args, quiet: bool, threads: Option<usize>) -> Result<()> {
     let nproc = std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1);
-    let threads = args.threads.unwrap_or(nproc);
-    if threads == 0 {
-        bail!("--threads must be >= 1");
-    }
+    let threads = threads.unwrap_or(nproc);
     if args.repeats == 0 {
         bail!("--repeats must be >= 1");
     }

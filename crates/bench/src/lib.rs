@@ -39,13 +39,14 @@ pub enum BenchKind {
     Ba(ba::Args),
 }
 
-/// Runs `bench`.
-pub fn run(args: &BenchArgs, quiet: bool) -> Result<()> {
+/// Runs `bench`; `threads` is the binary's global `--threads` (`None`: all
+/// cores), given to every run of the suite and to both sides of `bench ba`.
+pub fn run(args: &BenchArgs, quiet: bool, threads: Option<usize>) -> Result<()> {
     match &args.kind {
         Some(BenchKind::Features(a)) => features::run(a, quiet),
         Some(BenchKind::Estimators(a)) => estimators::run(a, quiet),
-        Some(BenchKind::Ba(a)) => ba::run(a, quiet),
-        None => suite::run(&args.suite, quiet),
+        Some(BenchKind::Ba(a)) => ba::run(a, quiet, threads),
+        None => suite::run(&args.suite, quiet, threads),
     }
 }
 

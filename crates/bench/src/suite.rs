@@ -63,13 +63,13 @@ pub struct SuiteArgs {
     /// Which suite: quick (synthetic 60 and 150 frames, tum_fr1_rpy_sub,
     /// strecha_fountain_P11, the KITTI clip) or full (every sequence with
     /// ground truth, synthetic 60/150/300, the KITTI clip).
-    #[arg(long, default_value = "quick", value_parser = ["quick", "full"])]
+    #[arg(long, value_name = "SUITE", default_value = "quick", value_parser = ["quick", "full"])]
     pub suite: String,
     /// Output folder of report.md, report.json, plots and runs.
-    #[arg(long, default_value = DEFAULT_OUT_DIR)]
+    #[arg(long, value_name = "DIR", default_value = DEFAULT_OUT_DIR)]
     pub out: PathBuf,
     /// Runs per sequence (median reported). Default: 1 quick, 3 full.
-    #[arg(long)]
+    #[arg(long, value_name = "N")]
     pub runs: Option<usize>,
     /// Also run the Python peers on the sequences with ground truth in TUM
     /// layout: all of them (`--peers`) or the named ones (`--peers
@@ -99,17 +99,14 @@ pub struct SuiteArgs {
     #[arg(long, value_name = "KEY=V1,V2,...")]
     pub sweep: Vec<String>,
     /// Datasets folder (default: $COLSLAM_DATA, else ./datasets or ../shared/datasets).
-    #[arg(long)]
+    #[arg(long, value_name = "DIR")]
     pub data: Option<PathBuf>,
     /// Per-run timeout, seconds.
-    #[arg(long, default_value_t = DEFAULT_TIMEOUT_S)]
+    #[arg(long, value_name = "SECONDS", default_value_t = DEFAULT_TIMEOUT_S)]
     pub timeout: u64,
-    /// Worker threads of each run (default: all cores).
-    #[arg(long)]
-    pub threads: Option<usize>,
     /// Only these sequences (comma separated names; `synthetic-<N>` adds a
     /// synthetic sequence of N frames).
-    #[arg(long, value_delimiter = ',')]
+    #[arg(long, value_name = "NAMES", value_delimiter = ',')]
     pub only: Vec<String>,
     /// An extra sequence (image folder or video; ground truth from its
     /// groundtruth.txt). Repeatable.
@@ -427,7 +424,7 @@ fn progress(quiet: bool, row: &RunRow) {
 }
 
 /// Runs the suite.
-pub fn run(args: &SuiteArgs, quiet: bool) -> Result<()> {
+pub fn run(args: &SuiteArgs, quiet: bool, threads: Option<usize>) -> Result<()> {
     let started = Instant::now();
     let started_unix_s =
         std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map(|d| d.as_secs()).unwrap_or(0);
@@ -452,7 +449,7 @@ pub fn run(args: &SuiteArgs, quiet: bool) -> Result<()> {
         exe: std::env::current_exe().context("locating the colslam executable")?,
         out: out.clone(),
         timeout: Duration::from_secs(args.timeout),
-        threads: args.threads,
+        threads,
         quiet,
     };
     let load_start = load_average();
@@ -487,7 +484,7 @@ pub fn run(args: &SuiteArgs, quiet: bool) -> Result<()> {
     let mut peer_notes = Vec::new();
     if let Some((mappers, orbslam3)) = &peers {
         let env = PeerEnv::find();
-        let threads = args.threads.map(|t| t.to_string());
+        let threads = threads.map(|t| t.to_string());
         for (seq, ok) in seqs.iter().zip(&runnable) {
             if !*ok || seq.gt.is_none() || !seq.has_tum_layout() {
                 continue;

@@ -12,31 +12,32 @@ pub const DEFAULT_DEMO_DIR: &str = "colslam-demo";
 
 /// Arguments of `demo`.
 #[derive(Debug, clap::Args)]
+#[command(next_help_heading = "Synthetic sequence")]
 pub struct DemoArgs {
-    /// Output folder (created; a complete sequence with the same options is reused).
-    #[arg(short, long, default_value = DEFAULT_DEMO_DIR)]
+    /// Folder of the sequence, its ground truth and the run's output/ (a complete sequence with the same options is reused).
+    #[arg(short, long, value_name = "DIR", default_value = DEFAULT_DEMO_DIR)]
     pub output: PathBuf,
     /// Number of frames.
-    #[arg(long)]
-    pub frames: Option<usize>,
+    #[arg(long, value_name = "N", default_value_t = SynthOptions::default().frames)]
+    pub frames: usize,
     /// Image width in pixels.
-    #[arg(long)]
-    pub width: Option<usize>,
+    #[arg(long, value_name = "PIXELS", default_value_t = SynthOptions::default().width)]
+    pub width: usize,
     /// Image height in pixels.
-    #[arg(long)]
-    pub height: Option<usize>,
+    #[arg(long, value_name = "PIXELS", default_value_t = SynthOptions::default().height)]
+    pub height: usize,
     /// Gaussian image noise, standard deviation in gray levels.
-    #[arg(long)]
-    pub noise: Option<f64>,
-    /// Motion blur: exposure as a fraction of the frame interval (0 = none).
-    #[arg(long)]
-    pub blur: Option<f64>,
-    /// Render with lens distortion (OPENCV model k1, k2, p1, p2).
+    #[arg(long, value_name = "SIGMA", default_value_t = SynthOptions::default().noise_sigma)]
+    pub noise: f64,
+    /// Motion blur: exposure as a fraction of the frame interval (0: none).
+    #[arg(long, value_name = "FRACTION", default_value_t = SynthOptions::default().motion_blur)]
+    pub blur: f64,
+    /// Render with lens distortion (OPENCV model k1, k2, p1, p2). Default: none.
     #[arg(long, num_args = 4, value_names = ["K1", "K2", "P1", "P2"], allow_hyphen_values = true)]
     pub distortion: Option<Vec<f64>>,
     /// Random seed of the scene, textures and path.
-    #[arg(long)]
-    pub scene_seed: Option<u64>,
+    #[arg(long, value_name = "N", default_value_t = SynthOptions::default().seed)]
+    pub scene_seed: u64,
     /// Only generate the sequence; do not run the pipeline on it.
     #[arg(long)]
     pub generate_only: bool,
@@ -46,29 +47,16 @@ pub struct DemoArgs {
 
 impl DemoArgs {
     fn options(&self) -> SynthOptions {
-        let mut o = SynthOptions::default();
-        if let Some(v) = self.frames {
-            o.frames = v;
+        SynthOptions {
+            frames: self.frames,
+            width: self.width,
+            height: self.height,
+            noise_sigma: self.noise,
+            motion_blur: self.blur,
+            distortion: self.distortion.as_ref().map(|d| [d[0], d[1], d[2], d[3]]),
+            seed: self.scene_seed,
+            ..SynthOptions::default()
         }
-        if let Some(v) = self.width {
-            o.width = v;
-        }
-        if let Some(v) = self.height {
-            o.height = v;
-        }
-        if let Some(v) = self.noise {
-            o.noise_sigma = v;
-        }
-        if let Some(v) = self.blur {
-            o.motion_blur = v;
-        }
-        if let Some(d) = &self.distortion {
-            o.distortion = Some([d[0], d[1], d[2], d[3]]);
-        }
-        if let Some(v) = self.scene_seed {
-            o.seed = v;
-        }
-        o
     }
 }
 
@@ -78,7 +66,7 @@ pub fn run(args: &DemoArgs, quiet: bool) -> Result<()> {
     // Options are checked before the sequence is rendered.
     args.options.validate()?;
     let opts = args.options();
-    let pb = crate::logging::progress_bar(opts.frames as u64, quiet, "rendering");
+    let pb = crate::logging::progress_bar(opts.frames as u64, quiet, "rendering", "frames");
     let progress = |done: usize, _total: usize| pb.set_position(done as u64);
     let synth = generate(&opts, &args.output, Some(&progress))
         .with_context(|| format!("generating the synthetic sequence in {}", args.output.display()))?;
@@ -94,7 +82,7 @@ pub fn run(args: &DemoArgs, quiet: bool) -> Result<()> {
     };
     let outcome =
         crate::cmd_run::run_with_progress(&run_args, quiet, colslam_slam::EventSink::none(), Default::default())?;
-    crate::cmd_run::print_outcome(&run_args, &outcome);
+    crate::cmd_run::print_outcome(&run_args, &outcome, quiet);
     if let Some(e) = &outcome.report.eval {
         outln!(
             "ATE RMSE {:.4} m over {} frames = {:.4} % of the scene diagonal ({:.2} m); plot: {}",

@@ -23,31 +23,31 @@ pub enum AlignArg {
 #[derive(Debug, clap::Args)]
 pub struct EvalArgs {
     /// Ground-truth trajectory (TUM format).
-    #[arg(long)]
+    #[arg(long, value_name = "FILE")]
     pub gt: PathBuf,
-    /// Estimated trajectory (TUM format).
-    #[arg(long)]
+    /// Estimated trajectory (TUM format), e.g. a run's trajectory.tum.
+    #[arg(long, value_name = "FILE")]
     pub est: PathBuf,
     /// Print one JSON object instead of a table.
     #[arg(long)]
     pub json: bool,
     /// Where to write the PNG plot (default: beside the estimate, `<name>.eval.png`).
-    #[arg(long)]
+    #[arg(long, value_name = "FILE")]
     pub plot: Option<PathBuf>,
     /// Do not write a plot.
     #[arg(long, conflicts_with = "plot")]
     pub no_plot: bool,
     /// Maximum timestamp difference for association, seconds.
-    #[arg(long, default_value_t = 0.01)]
+    #[arg(long, value_name = "SECONDS", default_value_t = 0.01)]
     pub max_diff: f64,
     /// Time offset added to the estimate's timestamps, seconds.
-    #[arg(long, default_value_t = 0.0, allow_hyphen_values = true)]
+    #[arg(long, value_name = "SECONDS", default_value_t = 0.0, allow_hyphen_values = true)]
     pub offset: f64,
     /// Alignment of the estimate onto the ground truth.
-    #[arg(long, value_enum, default_value = "sim3")]
+    #[arg(long, value_name = "KIND", value_enum, default_value = "sim3")]
     pub align: AlignArg,
-    /// RPE frame delta.
-    #[arg(long, default_value_t = 1)]
+    /// Frame distance of the relative pose error (RPE).
+    #[arg(long, value_name = "FRAMES", default_value_t = 1)]
     pub delta: usize,
 }
 

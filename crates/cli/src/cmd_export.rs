@@ -25,10 +25,10 @@ pub struct ExportArgs {
     /// COLMAP model folder (binary or text).
     pub model: PathBuf,
     /// Output: a folder for bin/txt, a file for ply/tum.
-    #[arg(short, long)]
+    #[arg(short, long, value_name = "PATH")]
     pub output: PathBuf,
     /// Output format.
-    #[arg(short, long, value_enum)]
+    #[arg(short, long, value_name = "FORMAT", value_enum)]
     pub format: ExportFormat,
 }
 

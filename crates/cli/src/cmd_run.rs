@@ -1,16 +1,18 @@
 //! `colslam run`: the SLAM pipeline on a video or an image sequence, through
 //! the library's driver ([`colslam_slam::run::run`]); this file only adds
-//! the progress bar and the printed summary.
+//! the progress bar and the printed summary (the numbers, the output folder
+//! and its files, the commands to view, evaluate and export it).
 
 use crate::stdout::outln;
 use anyhow::Result;
 use colslam_slam::run::{RunConfig, RunHooks, RunOutput, RunStart};
 use colslam_slam::{EventSink, RunReport};
+use std::path::Path;
 
 /// Calls `f` with the hooks of a progress bar over a run's frames (hidden
 /// with `quiet`), cleared when `f` returns.
 pub fn with_progress<R>(quiet: bool, f: impl FnOnce(RunHooks<'_>) -> R) -> R {
-    let pb = crate::logging::progress_bar(0, quiet, "frames");
+    let pb = crate::logging::progress_bar(0, quiet, "frames", "frames");
     let out = f(RunHooks {
         on_start: Some(Box::new(|s: &RunStart| pb.set_length(s.frames.unwrap_or(0) as u64))),
         after_frame: Some(Box::new(|slam: &colslam_slam::Slam| {
@@ -56,10 +58,61 @@ pub fn summary(r: &RunReport) -> String {
     s
 }
 
-/// Prints a finished run's summary and where its outputs are.
-pub fn print_outcome(config: &RunConfig, out: &RunOutput) {
-    outln!("{}", summary(&out.report));
-    outln!("outputs in {}", config.output.display());
+/// The main files of a run's output folder and what each holds, in the
+/// order the summary lists them.
+const OUTPUT_FILES: [(&str, &str); 6] = [
+    ("trajectory.tum", "every localised frame (TUM: time x y z qx qy qz qw, camera to world)"),
+    ("keyframes.tum", "the keyframes only, same format"),
+    ("cameras, images, points3D", "the COLMAP model of the largest map (.bin; .txt with --text; others in maps/)"),
+    ("points.ply", "its coloured point cloud"),
+    ("camera.yaml", "the camera the run ended with (--camera reads it)"),
+    ("report.json", "everything printed above, the options and the evaluation"),
+];
+
+/// Where a finished run's outputs are and what to do next: the output
+/// folder, its main files, and the exact commands to view, evaluate and
+/// export it (`gt`: the ground truth, when the run was given one).
+pub fn next_steps(out: &Path, gt: Option<&Path>) -> String {
+    let o = shell_word(out);
+    // The run already wrote the point cloud and the trajectory; the export
+    // a reader most likely wants is the model as COLMAP text, beside it.
+    let text_name = out.file_name().map_or_else(|| "model".into(), |n| n.to_string_lossy().into_owned()) + "-text";
+    let text = shell_word(&out.with_file_name(text_name));
+    let gt = gt.map_or_else(|| "GT.txt".to_string(), shell_word);
+    let est = shell_word(&out.join("trajectory.tum"));
+    let mut s = format!("Output folder: {}\n", out.display());
+    for (name, what) in OUTPUT_FILES {
+        s.push_str(&format!("  {name:<26} {what}\n"));
+    }
+    s.push_str("Next steps:\n");
+    s.push_str(&format!("  view      colslam view {o}\n"));
+    s.push_str(&format!("  evaluate  colslam eval --gt {gt} --est {est}\n"));
+    s.push_str(&format!(
+        "  export    colslam export {o} -o {text} -f txt   (-f ply: point cloud, -f tum: keyframe poses)"
+    ));
+    s
+}
+
+/// `p` as one word a shell reads back: quoted when it holds anything but
+/// letters, digits and `/._-+,:@=`.
+fn shell_word(p: &Path) -> String {
+    let s = p.display().to_string();
+    let plain = |c: char| c.is_ascii_alphanumeric() || "/._-+,:@=".contains(c);
+    if !s.is_empty() && s.chars().all(plain) { s } else { format!("'{}'", s.replace('\'', "'\\''")) }
+}
+
+/// Prints a finished run's summary on stdout: the numbers, the output folder
+/// with its main files and the next steps. With `quiet` only the one line a
+/// script needs: the run's headline and its output folder.
+pub fn print_outcome(config: &RunConfig, out: &RunOutput, quiet: bool) {
+    let r = &out.report;
+    if quiet {
+        outln!("{}; outputs in {}", r.headline(), config.output.display());
+        return;
+    }
+    outln!("{}\n", summary(r).trim_end());
+    outln!("Finished in {:.1} s: {}", r.wall_time_s, r.headline());
+    outln!("{}", next_steps(&config.output, config.gt.as_deref()));
 }
 
 /// Arguments of `run`: the run and the viewer flags.
@@ -77,6 +130,26 @@ pub fn run(args: &RunCommand, quiet: bool) -> Result<()> {
         return crate::cmd_view::run_followed(&args.config, &args.view, quiet);
     }
     let out = run_with_progress(&args.config, quiet, EventSink::none(), RunHooks::default())?;
-    print_outcome(&args.config, &out);
+    print_outcome(&args.config, &out, quiet);
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn next_steps_name_the_exact_commands() {
+        let s = next_steps(Path::new("runs/desk"), Some(Path::new("data/gt.txt")));
+        assert!(s.starts_with("Output folder: runs/desk\n"), "{s}");
+        assert!(s.contains("colslam view runs/desk\n"), "{s}");
+        assert!(s.contains("colslam eval --gt data/gt.txt --est runs/desk/trajectory.tum\n"), "{s}");
+        assert!(s.contains("colslam export runs/desk -o runs/desk-text -f txt"), "{s}");
+        let s = next_steps(Path::new("my run"), None);
+        assert!(
+            s.contains("colslam view 'my run'\n") && s.contains("--gt GT.txt --est 'my run/trajectory.tum'"),
+            "{s}"
+        );
+        assert_eq!(shell_word(Path::new("it's")), "'it'\\''s'");
+    }
 }

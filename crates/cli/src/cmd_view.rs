@@ -26,16 +26,17 @@ const VIEW_EXIT_LINGER: Duration = Duration::from_millis(500);
 #[derive(Debug, Clone, clap::Args)]
 pub struct ServerArgs {
     /// Port of the viewer (0: any free one; the printed URL names it).
-    #[arg(long, default_value_t = DEFAULT_PORT)]
+    #[arg(long, value_name = "PORT", default_value_t = DEFAULT_PORT)]
     pub port: u16,
-    /// Address to listen on. The default serves this machine only. Any
-    /// other address (e.g. 0.0.0.0) lets other machines connect: the viewer
-    /// then makes a random access token, prints it in the URL
+    /// Address to listen on; the default serves this machine only.
+    ///
+    /// Any other address (e.g. 0.0.0.0) lets other machines connect: the
+    /// viewer then makes a random access token, prints it in the URL
     /// (`http://HOST:PORT/?token=...`) and refuses requests without it
     /// (401). Whoever holds that URL can run the pipeline and read and write
     /// files as you: share it only with people you trust. The traffic is
     /// plain HTTP.
-    #[arg(long, default_value = "127.0.0.1")]
+    #[arg(long, value_name = "ADDRESS", default_value = "127.0.0.1")]
     pub bind: IpAddr,
 }
 
@@ -81,17 +82,16 @@ fn parse_size(s: &str) -> Result<(u32, u32), String> {
 
 /// Viewer flags of `run`.
 #[derive(Debug, Clone, clap::Args)]
+#[command(next_help_heading = "Viewer")]
 pub struct RunViewArgs {
-    /// Follow the run in the browser viewer; when the run ends, keep serving
-    /// the final model until Ctrl-C.
+    /// Follow the run in the browser viewer, then serve the final model until Ctrl-C.
     #[arg(long)]
     pub view: bool,
     /// Port of the viewer (0: any free one; the printed URL names it).
-    #[arg(long, default_value_t = DEFAULT_PORT, requires = "view")]
+    #[arg(long, value_name = "PORT", default_value_t = DEFAULT_PORT, requires = "view")]
     pub port: u16,
-    /// Address the viewer listens on (off loopback an access token is
-    /// required; see `colslam view --help`).
-    #[arg(long, default_value = "127.0.0.1", requires = "view")]
+    /// Address the viewer listens on (elsewhere than loopback a token is required; see `colslam view --help`).
+    #[arg(long, value_name = "ADDRESS", default_value = "127.0.0.1", requires = "view")]
     pub bind: IpAddr,
     /// With --view: exit when the run ends instead of serving on.
     #[arg(long, requires = "view")]
@@ -106,8 +106,8 @@ fn announce(viewer: &Viewer) -> Result<()> {
     Ok(())
 }
 
-/// Runs `view`.
-pub fn run(args: &ViewArgs) -> Result<()> {
+/// Runs `view`; the page's runs use `threads` (0: all cores).
+pub fn run(args: &ViewArgs, threads: usize) -> Result<()> {
     // A bad folder is reported before anything starts.
     let model = match &args.model {
         Some(dir) => Some(
@@ -137,7 +137,8 @@ pub fn run(args: &ViewArgs) -> Result<()> {
     let viewer = Viewer::start(options)?;
     if chromium.is_none() {
         let shared = Arc::new(RunShared::default());
-        viewer.set_controller(Arc::new(ViewController::new(viewer.handle(), shared, RunOptions::default())));
+        let base = RunOptions { threads, ..RunOptions::default() };
+        viewer.set_controller(Arc::new(ViewController::new(viewer.handle(), shared, base)));
     }
     if let (Some(rec), Some(dir)) = (&model, &args.model) {
         viewer.set_reconstruction_from(rec, &dir.display().to_string());
@@ -175,15 +176,30 @@ pub fn run_followed(config: &RunConfig, v: &RunViewArgs, quiet: bool) -> Result<
     shared.try_begin();
     let outcome = crate::cmd_run::with_progress(quiet, |bar| {
         run_live(config, bar, &viewer.handle(), &shared, std::time::Instant::now())
-    })?;
-    crate::cmd_run::print_outcome(config, &outcome);
+    });
+    // The page shows the end either way (finished, stopped or failed with
+    // the message); the terminal gets the summary or the error.
+    let failed = match outcome {
+        Ok(o) => {
+            crate::cmd_run::print_outcome(config, &o, quiet);
+            None
+        }
+        Err(e) => Some(e),
+    };
     if v.view_exit {
         std::io::stdout().flush()?;
         std::thread::sleep(VIEW_EXIT_LINGER);
         viewer.shutdown();
-        return Ok(());
+        return failed.map_or(Ok(()), |e| Err(e.into()));
     }
-    outln!("run finished; the viewer keeps serving at {} until Ctrl-C", viewer.url());
+    let ended = match failed {
+        Some(e) => {
+            eprintln!("error: {}", colslam_slam::error_chain(&e));
+            "run failed"
+        }
+        None => "run finished",
+    };
+    outln!("{ended}; the viewer keeps serving at {} until Ctrl-C", viewer.url());
     std::io::stdout().flush()?;
     viewer.wait();
     Ok(())

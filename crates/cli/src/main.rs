@@ -24,14 +24,35 @@ use clap::{Parser, Subcommand};
 #[derive(Debug, Parser)]
 #[command(name = "colslam", version, about, propagate_version = true)]
 struct Cli {
-    /// Less output (errors only). Overrides -v.
-    #[arg(short, long, global = true)]
-    quiet: bool,
-    /// More output (-v: debug, -vv: trace).
-    #[arg(short, long, global = true, action = clap::ArgAction::Count)]
-    verbose: u8,
+    #[command(flatten)]
+    global: GlobalArgs,
     #[command(subcommand)]
     command: Command,
+}
+
+/// Flags of every subcommand, declared once here and shown once, under
+/// their own heading at the end of each help.
+#[derive(Debug, Clone, clap::Args)]
+pub struct GlobalArgs {
+    /// Errors only: no logs, no progress bar, only what a script needs on stdout. Overrides -v.
+    #[arg(short, long, global = true, help_heading = GLOBAL_HEADING)]
+    pub quiet: bool,
+    /// More log output (-v: debug, -vv: trace).
+    #[arg(short, long, global = true, action = clap::ArgAction::Count, help_heading = GLOBAL_HEADING)]
+    pub verbose: u8,
+    /// Worker threads (0: all cores).
+    #[arg(long, value_name = "N", default_value_t = 0, global = true, help_heading = GLOBAL_HEADING)]
+    pub threads: usize,
+}
+
+/// The help heading of [`GlobalArgs`].
+const GLOBAL_HEADING: &str = "Global options";
+
+impl GlobalArgs {
+    /// `--threads` as the bench lab takes it (`None`: all cores).
+    fn thread_count(&self) -> Option<usize> {
+        (self.threads > 0).then_some(self.threads)
+    }
 }
 
 #[derive(Debug, Subcommand)]
@@ -55,7 +76,7 @@ enum Command {
 
 fn main() -> std::process::ExitCode {
     let cli = Cli::parse();
-    logging::init(cli.quiet, cli.verbose);
+    logging::init(cli.global.quiet, cli.global.verbose);
     match dispatch(cli) {
         Ok(()) => std::process::ExitCode::SUCCESS,
         Err(e) => {
@@ -66,14 +87,25 @@ fn main() -> std::process::ExitCode {
 }
 
 fn dispatch(cli: Cli) -> Result<()> {
-    let quiet = cli.quiet;
+    let g = cli.global;
+    if g.threads > 0 {
+        // One pool for every command (the run driver asks for the same
+        // size; the first pool built wins).
+        let _ = rayon::ThreadPoolBuilder::new().num_threads(g.threads).build_global();
+    }
     match cli.command {
-        Command::Demo(a) => cmd_demo::run(&a, quiet),
+        Command::Demo(mut a) => {
+            a.options.threads = g.threads;
+            cmd_demo::run(&a, g.quiet)
+        }
         Command::Eval(a) => cmd_eval::run(&a),
         Command::Export(a) => cmd_export::run(&a),
         Command::Info(a) => cmd_info::run(&a),
-        Command::Run(a) => cmd_run::run(&a, quiet),
-        Command::Bench(a) => colslam_bench::run(&a, quiet),
-        Command::View(a) => cmd_view::run(&a),
+        Command::Run(mut a) => {
+            a.config.options.threads = g.threads;
+            cmd_run::run(&a, g.quiet)
+        }
+        Command::Bench(a) => colslam_bench::run(&a, g.quiet, g.thread_count()),
+        Command::View(a) => cmd_view::run(&a, g.threads),
     }
 }

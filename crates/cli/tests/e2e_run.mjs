@@ -32,29 +32,67 @@ try {
   // The max-frames bound comes from the server's probe of the input.
   await page.waitForFunction((n) => document.getElementById('max-bound').dataset.bound === String(n), cfg.frames, { timeout: TIMEOUT_MS });
   await page.click('#run-btn');
-  await page.waitForFunction(() => /Started/.test(document.getElementById('run-msg').textContent), null, { timeout: TIMEOUT_MS });
+  await page.waitForFunction(() => /running|finished/.test(document.getElementById('stats').dataset.runState), null, { timeout: TIMEOUT_MS });
   const seen = new Set();
   let frames = new Set();
   const deadline = Date.now() + TIMEOUT_MS;
   let state = '';
+  // What the frame panel drew, sampled while the run goes on: one flow line
+  // per verified match of the frame drawn.
+  const drawn = new Map();
+  const running = new Set();
   while (Date.now() < deadline) {
     const id = await page.getAttribute('#frame-view', 'data-keyframe-id');
     const fi = await page.getAttribute('#frame-view', 'data-frame-index');
+    const d = await page.evaluate(() => ({ ...document.getElementById('stats').dataset }));
     state = await page.textContent('#run-note');
+    if (/^running/.test(state)) running.add(await page.textContent('#status-line'));
     if (/finished|failed/.test(state)) break;
     if (id) seen.add(id);
     if (fi) frames.add(fi);
+    if (d.flowFrame && d.flowFrame !== '-1') drawn.set(d.flowFrame, d);
     await page.waitForTimeout(30);
   }
-  log(`keyframes seen while running: ${[...seen].join(',')}; frames seen: ${frames.size}; ${state}`);
+  log(`keyframes seen while running: ${[...seen].join(',')}; frames seen: ${frames.size}; frames drawn: ${drawn.size}; ${state}`);
   if (!/finished/.test(state)) throw new Error(`run did not finish: ${state}`);
   if (seen.size < 2) throw new Error(`fewer than 2 keyframes seen live: ${[...seen]}`);
   if (frames.size < 2) throw new Error(`fewer than 2 frames seen live`);
+  if (drawn.size < 2) throw new Error(`fewer than 2 frames drawn with flow`);
+  for (const [f, d] of drawn) {
+    if (d.flowLines !== d.frameInliers) throw new Error(`frame ${f}: ${d.flowLines} lines drawn for ${d.frameInliers} verified matches`);
+    if (Number(d.outlierLines) !== 0) throw new Error(`frame ${f}: rejected matches drawn without asking`);
+  }
+  const withOutliers = [...drawn.values()].filter((d) => Number(d.frameInliers) < Number(d.frameMatches));
+  if (!withOutliers.length) throw new Error('no frame had rejected matches: the test shows nothing');
+  log(`verified / matches of the frames drawn: ${[...drawn.values()].map((d) => d.frameInliers + '/' + d.frameMatches).join(' ')}`);
+  // The status followed the run: "running: frame i/N" while it went on.
+  if (![...running].some((t) => new RegExp(`^running: frame \\d+/${cfg.frames}`).test(t))) throw new Error(`running status: ${[...running]}`);
+  // The rejected matches on request, in another colour.
+  await page.check('#show-outliers');
+  const out = await page.evaluate(() => ({ ...document.getElementById('stats').dataset }));
+  if (!(Number(out.outlierLines) > 0) && Number(out.frameInliers) < Number(out.frameMatches)) throw new Error(`rejected matches not drawn: ${JSON.stringify(out)}`);
+  await page.uncheck('#show-outliers');
+  // Finished: its line names the localised frames and the output folder;
+  // nothing says "Started." any more.
+  const status = await page.textContent('#status-line');
+  const report = JSON.parse(readFileSync(cfg.output + '/report.json', 'utf8'));
+  const want = `finished: ${report.localized} of ${cfg.frames} frames localised, ${report.keyframes} keyframes`;
+  if (!status.startsWith(want) || !status.endsWith(`outputs in ${cfg.output}`)) throw new Error(`status ${JSON.stringify(status)}, wanted ${want} ... outputs in ${cfg.output}`);
+  if (/Started/.test(await page.textContent('#sidebar'))) throw new Error('"Started." left after the run');
   const kf = parseInt(await page.textContent('#sum-keyframes'), 10);
   const cams = await page.getAttribute('#stats', 'data-cameras');
   const pts = parseInt(await page.getAttribute('#stats', 'data-points'), 10);
   if (!(kf >= 2) || String(kf) !== cams || !(pts > 0)) throw new Error(`final map: ${kf} keyframes, ${cams} cameras, ${pts} points`);
   if (cfg.shot) await page.screenshot({ path: cfg.shot });
+  // A run that fails (frames that cannot be decoded pass the start checks):
+  // the status says failed, with the pipeline's message.
+  await page.fill('#input-path', cfg.broken_input);
+  await page.fill('#output-path', cfg.broken_output);
+  await page.click('#run-btn');
+  await page.waitForFunction(() => document.getElementById('stats').dataset.runState === 'failed', null, { timeout: TIMEOUT_MS });
+  const failed = await page.textContent('#status-line');
+  if (!failed.startsWith('failed: ') || !failed.includes('no frame could be read') || !failed.includes('broken')) throw new Error(`failed status: ${JSON.stringify(failed)}`);
+  if ((await page.textContent('#run-msg')).trim()) throw new Error('a run message was left: ' + await page.textContent('#run-msg'));
   if (errors.length) throw new Error(errors.join('\n'));
   ok = true;
 } catch (e) {

@@ -171,6 +171,14 @@ fn run_with_view_streams_keyframes_live() {
     assert!(live_keyframes.len() >= 2, "keyframes arrive as increments while the run goes on: {live_keyframes:?}");
     let with_lines = events.iter().filter(|e| e["frame"]["lines"].as_array().is_some_and(|a| !a.is_empty())).count();
     assert!(with_lines > 0, "frames come with flow lines");
+    // One flow line per verified match, and verification rejected some.
+    let frames: Vec<&Value> =
+        events.iter().filter_map(|e| e.get("frame")).filter(|f| f["num_matches"].as_u64() > Some(0)).collect();
+    for f in &frames {
+        let lines = f["lines"].as_array().map_or(0, Vec::len) / 4;
+        assert_eq!(Some(lines as u64), f["num_inliers"].as_u64(), "frame {}", f["index"]);
+    }
+    assert!(frames.iter().any(|f| f["num_inliers"].as_u64() < f["num_matches"].as_u64()), "some matches were rejected");
     assert!(events.iter().any(|e| e["frame"]["picture"].is_u64()), "frames come with their picture");
     let live_points = events
         .iter()
@@ -236,7 +244,7 @@ fn view_runs_the_pipeline_from_the_page_api() {
     let (status, body) = request(&url, "POST", "/api/stop", Some(&serde_json::json!({})));
     assert_eq!(status, 200, "{body}");
     let deadline = Instant::now() + RUN_TIMEOUT;
-    while !out2.join("report.json").is_file() || get_json(&url, "/api/state")["run"]["state"] != "finished" {
+    while !out2.join("report.json").is_file() || get_json(&url, "/api/state")["run"]["state"] != "stopped" {
         assert!(Instant::now() < deadline, "stopped run did not end");
         std::thread::sleep(Duration::from_millis(100));
     }
@@ -248,6 +256,49 @@ fn view_runs_the_pipeline_from_the_page_api() {
         report["frames"]
     );
     assert!(report["notes"].to_string().contains("stopped on request"), "notes: {}", report["notes"]);
+    let run = &get_json(&url, "/api/state")["run"];
+    let line = format!("of {} frames localised", report["frames"]);
+    assert!(run["message"].as_str().is_some_and(|m| m.contains(&line) && m.contains("out2")), "{run}");
+}
+
+/// A folder of frames whose headers are valid (so a run starts) but whose
+/// pixel data is cut off: every frame fails to decode and the run fails.
+fn broken_frames(dir: &Path) -> PathBuf {
+    let seq = dir.join("broken");
+    std::fs::create_dir_all(&seq).expect("mkdir");
+    for i in 0..3 {
+        let p = seq.join(format!("{i:03}.png"));
+        colslam_image::Image::new(32, 24, 1).write_png(&p).expect("png");
+        let bytes = std::fs::read(&p).expect("read");
+        std::fs::write(&p, &bytes[..40]).expect("truncate");
+    }
+    seq
+}
+
+#[test]
+fn run_with_view_shows_a_failed_run() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let empty = dir.path().join("no-images-here");
+    std::fs::create_dir_all(&empty).expect("mkdir");
+    let out = dir.path().join("out");
+    let (mut child, url, _stdout) = spawn_viewer(&[
+        "-q".as_ref(),
+        "run".as_ref(),
+        empty.as_os_str(),
+        "-o".as_ref(),
+        out.as_os_str(),
+        "--view".as_ref(),
+        "--port".as_ref(),
+        "0".as_ref(),
+        "--view-exit".as_ref(),
+    ]);
+    let events = read_events(&url, Instant::now() + RUN_TIMEOUT);
+    let status = child.0.wait().expect("wait");
+    assert!(!status.success(), "a failed run fails the command");
+    let run = events.iter().rev().find_map(|e| e.get("run")).expect("a run state");
+    assert_eq!(run["state"], "failed", "{run}");
+    let msg = run["message"].as_str().unwrap_or("");
+    assert!(msg.contains("no-images-here"), "the message names the input: {msg}");
 }
 
 fn skip_or_fail(what: &str) {
@@ -286,6 +337,8 @@ fn browser_run_from_the_settings_panel() {
         "playwright": format!("file://{}", playwright.display()),
         "input": seq,
         "output": out,
+        "broken_input": broken_frames(dir.path()),
+        "broken_output": dir.path().join("broken-out"),
         // Only on request: the picture shows timings, so it changes from run to run.
         // (A relative folder is taken from the workspace root, as in the viewer's browser test.)
         "shot": std::env::var_os("COLSLAM_SCREENSHOT_DIR").map(|d| root.join(d).join("viewer-live-run.png")),

@@ -18,9 +18,17 @@ pub enum SlamEvent {
         flow_score: f64,
         /// Matches to the last keyframe.
         num_matches: usize,
+        /// Of those, the matches the frame's geometric verification kept:
+        /// the inliers of the two-view geometry against the keyframe (the
+        /// number the debug log reports for the frame).
+        num_inliers: usize,
         /// Flow lines `[x_frame, y_frame, x_keyframe, y_keyframe]` in pixels
-        /// (OpenCV convention), for drawing.
+        /// (OpenCV convention) of the verified matches: one per inlier (at
+        /// most [`MAX_INLIER_LINES`]).
         flow_lines: Vec<[f32; 4]>,
+        /// The same for the matches verification rejected, a subsample of at
+        /// most [`MAX_OUTLIER_LINES`].
+        outlier_lines: Vec<[f32; 4]>,
         /// Whether it became a keyframe.
         is_keyframe: bool,
     },
@@ -130,8 +138,22 @@ pub struct EventPoint {
     pub color: [u8; 3],
 }
 
-/// Flow lines sent per frame event (a subsample of the matches).
-const MAX_FLOW_LINES: usize = 300;
+/// Flow lines of verified matches sent per frame event: all of them up to
+/// the automatic keypoint cap, so a consumer can draw one per inlier.
+pub const MAX_INLIER_LINES: usize = crate::options::AUTO_FEATURES_MAX;
+
+/// Flow lines of rejected matches sent per frame event (a subsample).
+pub const MAX_OUTLIER_LINES: usize = 300;
+
+/// A frame's matches to its reference keyframe as consumers draw them,
+/// split by the frame's geometric verification.
+#[derive(Debug, Default)]
+pub(crate) struct FrameFlow {
+    num_matches: usize,
+    num_inliers: usize,
+    inlier_lines: Vec<[f32; 4]>,
+    outlier_lines: Vec<[f32; 4]>,
+}
 
 /// Turns the pipeline's progress into events: what was sent of the current
 /// map (so map updates are increments) and the diagnostics that only
@@ -148,9 +170,34 @@ pub(crate) struct Emitter {
     debug_gt: Option<colslam_eval::trajectory::Trajectory>,
 }
 
+/// Lines `[x_frame, y_frame, x_keyframe, y_keyframe]` of `matches`, every
+/// `step`-th one, at most `max`.
+fn flow_lines<'a>(
+    matches: impl Iterator<Item = &'a colslam_features::Match>,
+    frame: &crate::frame::FrameData,
+    reference: &crate::frame::FrameData,
+    step: usize,
+    max: usize,
+) -> Vec<[f32; 4]> {
+    matches
+        .step_by(step.max(1))
+        .filter_map(|m| {
+            let a = frame.features.keypoints.get(m.query as usize)?;
+            let b = reference.features.keypoints.get(m.train as usize)?;
+            Some([a.x, a.y, b.x, b.y])
+        })
+        .take(max)
+        .collect()
+}
+
 impl Emitter {
     pub(crate) fn new(sink: EventSink, local_ba_images: usize) -> Self {
         Self { sink, local_ba_images, ..Self::default() }
+    }
+
+    /// True when a consumer listens (diagnostics only it needs are computed then).
+    pub(crate) fn is_active(&self) -> bool {
+        self.sink.is_active()
     }
 
     pub(crate) fn set_debug_ground_truth(&mut self, gt: colslam_eval::trajectory::Trajectory) {
@@ -166,44 +213,45 @@ impl Emitter {
         self.sent_points.clear();
     }
 
-    /// A frame went through the keyframe test against `map`'s reference.
+    /// The flow of `frame`'s `matches` (query = frame) to `reference`, split
+    /// by `inliers` (one flag per match); `None` without a consumer.
+    pub(crate) fn flow(
+        &self,
+        frame: &crate::frame::FrameData,
+        reference: &crate::frame::FrameData,
+        matches: &[colslam_features::Match],
+        inliers: &[bool],
+    ) -> Option<FrameFlow> {
+        if !self.is_active() {
+            return None;
+        }
+        let flagged = || matches.iter().zip(inliers.iter().chain(std::iter::repeat(&false)));
+        let num_inliers = inliers.iter().filter(|&&i| i).count();
+        let outliers = matches.len() - num_inliers.min(matches.len());
+        let inlier_lines = flow_lines(flagged().filter(|p| *p.1).map(|p| p.0), frame, reference, 1, MAX_INLIER_LINES);
+        let step = outliers.div_ceil(MAX_OUTLIER_LINES);
+        let outlier_lines =
+            flow_lines(flagged().filter(|p| !*p.1).map(|p| p.0), frame, reference, step, MAX_OUTLIER_LINES);
+        Some(FrameFlow { num_matches: matches.len(), num_inliers, inlier_lines, outlier_lines })
+    }
+
+    /// A frame went through the keyframe test; `flow` from [`Emitter::flow`].
     pub(crate) fn frame(
         &mut self,
-        map: Option<&crate::mapper::Mapper>,
         data: &crate::frame::FrameData,
-        matches: &[colslam_features::Match],
-        flow: f64,
+        flow: Option<FrameFlow>,
+        flow_score: f64,
         is_keyframe: bool,
     ) {
-        if !self.sink.is_active() {
-            return;
-        }
-        let kf = map.and_then(|m| {
-            // The keyframe the frame was matched to is the last one, or the
-            // one before when this frame itself just became a keyframe.
-            let k = m.keyframes().len().checked_sub(if is_keyframe { 2 } else { 1 })?;
-            m.keyframes().get(k)
-        });
-        let step = (matches.len() / MAX_FLOW_LINES).max(1);
-        let flow_lines = kf
-            .map(|kf| {
-                matches
-                    .iter()
-                    .step_by(step)
-                    .filter_map(|m| {
-                        let a = data.features.keypoints.get(m.query as usize)?;
-                        let b = kf.data.features.keypoints.get(m.train as usize)?;
-                        Some([a.x, a.y, b.x, b.y])
-                    })
-                    .collect()
-            })
-            .unwrap_or_default();
+        let Some(flow) = flow.filter(|_| self.is_active()) else { return };
         self.sink.send(SlamEvent::FrameProcessed {
             index: data.index(),
             timestamp: data.id.timestamp,
-            flow_score: flow,
-            num_matches: matches.len(),
-            flow_lines,
+            flow_score,
+            num_matches: flow.num_matches,
+            num_inliers: flow.num_inliers,
+            flow_lines: flow.inlier_lines,
+            outlier_lines: flow.outlier_lines,
             is_keyframe,
         });
     }
@@ -293,6 +341,35 @@ impl Emitter {
                 r.scale
             ),
             Err(e) => tracing::debug!("map {}: keyframe ATE not available: {e}", map.index()),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::frame::tests::frame_data;
+    use colslam_features::Match;
+
+    #[test]
+    fn a_frame_event_draws_every_verified_match_and_a_subsample_of_the_rest() {
+        let n = 1000;
+        let frame = frame_data(1, vec![colslam_geometry::Vec2::zeros(); n]);
+        let reference = frame_data(0, vec![colslam_geometry::Vec2::zeros(); n]);
+        let matches: Vec<Match> = (0..n as u32).map(|i| Match { query: i, train: i, distance: 0.0 }).collect();
+        let inliers: Vec<bool> = (0..n).map(|i| i % 3 != 0).collect();
+        let silent = Emitter::new(EventSink::none(), 7);
+        assert!(silent.flow(&frame, &reference, &matches, &inliers).is_none(), "nothing computed without a consumer");
+        let (sink, events) = EventSink::channel();
+        let mut e = Emitter::new(sink, 7);
+        let flow = e.flow(&frame, &reference, &matches, &inliers);
+        e.frame(&frame, flow, 0.1, false);
+        match events.try_recv() {
+            Ok(SlamEvent::FrameProcessed { num_matches, num_inliers, flow_lines, outlier_lines, .. }) => {
+                assert_eq!((num_matches, num_inliers, flow_lines.len()), (1000, 666, 666), "one line per inlier");
+                assert!((1..=MAX_OUTLIER_LINES).contains(&outlier_lines.len()), "{}", outlier_lines.len());
+            }
+            other => panic!("a frame event: {other:?}"),
         }
     }
 }

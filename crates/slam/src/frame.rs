@@ -154,7 +154,7 @@ pub struct FramePose {
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
     use colslam_features::{Descriptors, Keypoint};
 

@@ -67,22 +67,22 @@ impl std::fmt::Display for MatcherKind {
 #[serde(default, deny_unknown_fields)]
 pub struct FrontendOptions {
     /// Feature extractor.
-    #[cfg_attr(feature = "cli", arg(long, default_value_t = FrontendOptions::default().features))]
+    #[cfg_attr(feature = "cli", arg(long, value_name = "KIND", default_value_t = FrontendOptions::default().features))]
     pub features: FeatureKind,
     /// Matcher.
-    #[cfg_attr(feature = "cli", arg(long, default_value_t = FrontendOptions::default().matcher))]
+    #[cfg_attr(feature = "cli", arg(long, value_name = "KIND", default_value_t = FrontendOptions::default().matcher))]
     pub matcher: MatcherKind,
     /// Keypoints per frame: 0, or at least 8.
     ///
     /// 0 scales them with the image area: 1000 at 640x480, 2300 at 1241x376,
     /// at most 8000.
-    #[cfg_attr(feature = "cli", arg(long, default_value_t = FrontendOptions::default().num_features))]
+    #[cfg_attr(feature = "cli", arg(long, value_name = "N", default_value_t = FrontendOptions::default().num_features))]
     pub num_features: usize,
     /// Largest Hamming distance (bits of 256) of an ORB match.
-    #[cfg_attr(feature = "cli", arg(long, default_value_t = FrontendOptions::default().max_hamming))]
+    #[cfg_attr(feature = "cli", arg(long, value_name = "BITS", default_value_t = FrontendOptions::default().max_hamming))]
     pub max_hamming: u32,
     /// Lowe's ratio of the nearest-neighbour matcher, in (0, 1].
-    #[cfg_attr(feature = "cli", arg(long, default_value_t = FrontendOptions::default().max_ratio))]
+    #[cfg_attr(feature = "cli", arg(long, value_name = "RATIO", default_value_t = FrontendOptions::default().max_ratio))]
     pub max_ratio: f32,
 }
 
@@ -129,18 +129,18 @@ impl FrontendOptions {
 #[serde(default, deny_unknown_fields)]
 pub struct InitOptions {
     /// Frames considered for map initialisation, at least 2.
-    #[cfg_attr(feature = "cli", arg(long, default_value_t = InitOptions::default().init_frames))]
+    #[cfg_attr(feature = "cli", arg(long, value_name = "N", default_value_t = InitOptions::default().init_frames))]
     pub init_frames: usize,
     /// Minimum median triangulation angle of the initial pair, degrees in [0, 90).
     ///
     /// COLMAP's 16 degrees suits photo collections; video needs less.
-    #[cfg_attr(feature = "cli", arg(long, default_value_t = InitOptions::default().init_min_tri_angle))]
+    #[cfg_attr(feature = "cli", arg(long, value_name = "DEGREES", default_value_t = InitOptions::default().init_min_tri_angle))]
     pub init_min_tri_angle: f64,
     /// Minimum inlier matches of the initial pair, at least 8.
-    #[cfg_attr(feature = "cli", arg(long, default_value_t = InitOptions::default().init_min_inliers))]
+    #[cfg_attr(feature = "cli", arg(long, value_name = "N", default_value_t = InitOptions::default().init_min_inliers))]
     pub init_min_inliers: usize,
     /// Minimum 3D points after initialisation (ORB-SLAM asks for 50, COLMAP for one).
-    #[cfg_attr(feature = "cli", arg(long, default_value_t = InitOptions::default().init_min_points))]
+    #[cfg_attr(feature = "cli", arg(long, value_name = "N", default_value_t = InitOptions::default().init_min_points))]
     pub init_min_points: usize,
 }
 
@@ -160,16 +160,16 @@ pub struct KeyframeOptions {
     ///
     /// The score is a displacement over the focal length: 1 is already a
     /// motion of a whole focal length between frames.
-    #[cfg_attr(feature = "cli", arg(long, default_value_t = KeyframeOptions::default().flow_threshold))]
+    #[cfg_attr(feature = "cli", arg(long, value_name = "SCORE", default_value_t = KeyframeOptions::default().flow_threshold))]
     pub flow_threshold: f64,
     /// Matches to the last keyframe a keyframe needs, at least 8.
-    #[cfg_attr(feature = "cli", arg(long, default_value_t = KeyframeOptions::default().min_matches))]
+    #[cfg_attr(feature = "cli", arg(long, value_name = "N", default_value_t = KeyframeOptions::default().min_matches))]
     pub min_matches: usize,
     /// Below this many matches to the last keyframe a keyframe is forced.
     ///
     /// Tracking is about to be lost: the frame (or the previous one) becomes
     /// a keyframe before the paper's thresholds would allow it.
-    #[cfg_attr(feature = "cli", arg(long, default_value_t = KeyframeOptions::default().force_keyframe_matches))]
+    #[cfg_attr(feature = "cli", arg(long, value_name = "N", default_value_t = KeyframeOptions::default().force_keyframe_matches))]
     pub force_keyframe_matches: usize,
     /// Accept keyframe candidates whose motion is a pure rotation.
     ///
@@ -178,7 +178,7 @@ pub struct KeyframeOptions {
     #[cfg_attr(feature = "cli", arg(long))]
     pub allow_pure_rotation: bool,
     /// Consecutive untracked frames (at least 1) before a new map is started.
-    #[cfg_attr(feature = "cli", arg(long, default_value_t = KeyframeOptions::default().max_lost_frames))]
+    #[cfg_attr(feature = "cli", arg(long, value_name = "N", default_value_t = KeyframeOptions::default().max_lost_frames))]
     pub max_lost_frames: usize,
 }
 
@@ -202,38 +202,38 @@ impl Default for KeyframeOptions {
 #[serde(default, deny_unknown_fields)]
 pub struct MapperOptions {
     /// Previous keyframes a new keyframe is matched against, at least 1.
-    #[cfg_attr(feature = "cli", arg(long, default_value_t = MapperOptions::default().match_keyframes))]
+    #[cfg_attr(feature = "cli", arg(long, value_name = "N", default_value_t = MapperOptions::default().match_keyframes))]
     pub match_keyframes: usize,
     /// Older keyframes looking the same way a new keyframe is matched against too (0: off).
     ///
     /// The camera came back to a view it mapped before: matching those
     /// keyframes ties the new tracks to the old points.
-    #[cfg_attr(feature = "cli", arg(long, default_value_t = MapperOptions::default().match_revisited))]
+    #[cfg_attr(feature = "cli", arg(long, value_name = "N", default_value_t = MapperOptions::default().match_revisited))]
     pub match_revisited: usize,
     /// A keyframe keeping fewer 3D points than this is deregistered (paper 3.5).
-    #[cfg_attr(feature = "cli", arg(long, default_value_t = MapperOptions::default().min_keyframe_points))]
+    #[cfg_attr(feature = "cli", arg(long, value_name = "N", default_value_t = MapperOptions::default().min_keyframe_points))]
     pub min_keyframe_points: usize,
     /// Maximum reprojection error of an observation, pixels (COLMAP: 4).
-    #[cfg_attr(feature = "cli", arg(long, default_value_t = MapperOptions::default().max_reproj_error))]
+    #[cfg_attr(feature = "cli", arg(long, value_name = "PIXELS", default_value_t = MapperOptions::default().max_reproj_error))]
     pub max_reproj_error: f64,
     /// Minimum triangulation angle of a 3D point, degrees in [0, 90).
     ///
     /// COLMAP uses 1.5 for photo collections; hand-held video that mostly
     /// turns and forward driving need less, or tracking is lost wherever the
     /// view turns to a region whose points could not be triangulated yet.
-    #[cfg_attr(feature = "cli", arg(long, default_value_t = MapperOptions::default().min_tri_angle))]
+    #[cfg_attr(feature = "cli", arg(long, value_name = "DEGREES", default_value_t = MapperOptions::default().min_tri_angle))]
     pub min_tri_angle: f64,
     /// RANSAC threshold of absolute pose estimation, pixels.
-    #[cfg_attr(feature = "cli", arg(long, default_value_t = MapperOptions::default().abs_pose_max_error))]
+    #[cfg_attr(feature = "cli", arg(long, value_name = "PIXELS", default_value_t = MapperOptions::default().abs_pose_max_error))]
     pub abs_pose_max_error: f64,
     /// Minimum PnP inliers to register or localise a frame, at least 6 (COLMAP: 30).
-    #[cfg_attr(feature = "cli", arg(long, default_value_t = MapperOptions::default().abs_pose_min_inliers))]
+    #[cfg_attr(feature = "cli", arg(long, value_name = "N", default_value_t = MapperOptions::default().abs_pose_min_inliers))]
     pub abs_pose_min_inliers: usize,
     /// Keyframes in a local bundle adjustment, at least 2: the new one and its most connected (paper 3.6).
-    #[cfg_attr(feature = "cli", arg(long, default_value_t = MapperOptions::default().local_ba_images))]
+    #[cfg_attr(feature = "cli", arg(long, value_name = "N", default_value_t = MapperOptions::default().local_ba_images))]
     pub local_ba_images: usize,
     /// Global bundle adjustment once registered keyframes or points grew by this factor (> 1; COLMAP 1.1).
-    #[cfg_attr(feature = "cli", arg(long, default_value_t = MapperOptions::default().global_ba_growth))]
+    #[cfg_attr(feature = "cli", arg(long, value_name = "FACTOR", default_value_t = MapperOptions::default().global_ba_growth))]
     pub global_ba_growth: f64,
     /// Weight bundle-adjustment observations by the keypoint's pyramid level.
     ///
@@ -365,7 +365,7 @@ pub struct RefineOptions {
     #[cfg_attr(feature = "cli", arg(long))]
     pub refine_intrinsics: bool,
     /// Localise every non-keyframe against the final map.
-    #[cfg_attr(feature = "cli", arg(long, default_value_t = RefineOptions::default().localize_all_frames, action = clap::ArgAction::Set))]
+    #[cfg_attr(feature = "cli", arg(long, value_name = "BOOL", default_value_t = RefineOptions::default().localize_all_frames, action = clap::ArgAction::Set))]
     pub localize_all_frames: bool,
     /// At the end, add every localised frame to the model and bundle adjust all of them together.
     ///
@@ -406,8 +406,8 @@ pub struct SlamOptions {
     /// Refinement and localisation after mapping.
     #[cfg_attr(feature = "cli", command(flatten))]
     pub refine: RefineOptions,
-    /// Seed of every random choice (RANSAC).
-    #[cfg_attr(feature = "cli", arg(long, default_value_t = 0))]
+    /// Seed of every random choice (RANSAC): the same seed, the same result.
+    #[cfg_attr(feature = "cli", arg(long, value_name = "N", default_value_t = 0, help_heading = "Mapper"))]
     pub seed: u64,
 }
 

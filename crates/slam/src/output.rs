@@ -103,6 +103,23 @@ pub struct RunReport {
     pub eval: Option<colslam_eval::EvalReport>,
 }
 
+impl RunReport {
+    /// The run in one line, e.g. `38 of 40 frames localised, 6 keyframes,
+    /// 1234 points, 1 map` (the numbers of the largest map; every front end
+    /// that names a run's outcome uses this line).
+    pub fn headline(&self) -> String {
+        let maps = self.maps.len();
+        format!(
+            "{} of {} frames localised, {} keyframes, {} points, {maps} map{}",
+            self.localized,
+            self.frames,
+            self.keyframes,
+            self.points,
+            if maps == 1 { "" } else { "s" }
+        )
+    }
+}
+
 /// A camera in the report.
 #[derive(Debug, Clone, Serialize)]
 pub struct CameraSummary {

@@ -22,6 +22,41 @@ use rayon::prelude::*;
 use std::collections::{HashSet, VecDeque};
 use std::sync::Arc;
 
+/// The geometric verification of a tracked frame against its reference
+/// keyframe `kf` (`focal` in pixels): the two-view geometry of their matches (COLMAP's
+/// verification of an image pair), computed when the pure-rotation `guard`
+/// needs it, when a consumer draws the frame's flow or when the debug log
+/// reports it (the same seed, so the guard's answer does not depend on who
+/// looks). Returns the geometry and the flow the emitter sends.
+fn verify_frame(
+    emitter: &Emitter,
+    opts: &SlamOptions,
+    data: &FrameData,
+    kf: &crate::mapper::Keyframe,
+    matches: &[Match],
+    focal: f64,
+    guard: bool,
+) -> (Option<colslam_estimators::TwoViewGeometry>, Option<crate::events::FrameFlow>) {
+    let debug = tracing::enabled!(tracing::Level::DEBUG);
+    if !(guard || debug || emitter.is_active()) {
+        return (None, None);
+    }
+    let geometry = two_view(data, &kf.data, matches, focal, opts.seed, KEYFRAME_TWO_VIEW_TRIALS);
+    // A failed estimate verifies nothing; the mask covers every match.
+    let inliers = match &geometry {
+        Some(g) if g.inlier_mask.len() == matches.len() => g.inlier_mask.clone(),
+        _ => vec![false; matches.len()],
+    };
+    let num_inliers = inliers.iter().filter(|&&i| i).count();
+    tracing::debug!(
+        "frame {}: {} matches to keyframe {}, {num_inliers} verified (two-view inliers)",
+        data.index(),
+        matches.len(),
+        kf.image_id.0
+    );
+    (geometry, emitter.flow(data, &kf.data, matches, &inliers))
+}
+
 /// Non-keyframes kept in memory until the next keyframe (they are matched
 /// to it as well, then dropped). Bounds memory on long static stretches.
 const MAX_PENDING_FRAMES: usize = 60;
@@ -417,23 +452,22 @@ impl Slam {
         let t0 = std::time::Instant::now();
         let flow = flow_score(&data.features.keypoints, &kf.data.features.keypoints, &matches, fx, fy)?;
         let decision = keyframe_decision(matches.len(), flow.score, &self.opts.keyframes);
+        let guard = decision.candidate && !self.opts.keyframes.allow_pure_rotation;
+        let (geometry, frame_flow) =
+            verify_frame(&self.emitter, &self.opts, &data, kf, &matches, 0.5 * (fx + fy), guard);
+        // With a viewer attached this includes every frame's verification.
+        self.timings.add(Stage::KeyframeTest, t0.elapsed());
         // `failed`: a keyframe registration failed, the map could not explain
         // this frame (wrong matches, a cut, a collapsed map).
         let (mut became, mut failed) = (false, false);
         if decision.candidate {
-            let rotation = !self.opts.keyframes.allow_pure_rotation
-                && two_view(&data, &kf.data, &matches, 0.5 * (fx + fy), self.opts.seed, KEYFRAME_TWO_VIEW_TRIALS)
-                    .is_some_and(|g| g.config == TwoViewConfig::Panoramic);
-            self.timings.add(Stage::KeyframeTest, t0.elapsed());
-            if rotation {
+            if guard && geometry.is_some_and(|g| g.config == TwoViewConfig::Panoramic) {
                 self.stats.rejected_rotation += 1;
                 tracing::debug!("frame {}: keyframe candidate rejected (pure rotation)", data.index());
             } else {
                 became = self.try_keyframe(&data, &matches)?;
                 failed = !became;
             }
-        } else {
-            self.timings.add(Stage::KeyframeTest, t0.elapsed());
         }
         if !became && !failed {
             match decision.force {
@@ -451,11 +485,7 @@ impl Slam {
                 }
             }
         }
-        let map = match &self.state {
-            State::Tracking(t) => Some(&t.map),
-            State::Initializing { .. } => None,
-        };
-        self.emitter.frame(map, &data, &matches, flow.score, became);
+        self.emitter.frame(&data, frame_flow, flow.score, became);
         if became {
             if let Some(t) = self.tracking() {
                 t.lost = 0;

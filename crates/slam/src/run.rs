@@ -38,28 +38,33 @@ const PREFETCH_FRAMES: usize = 4;
 #[cfg_attr(feature = "cli", command(next_help_heading = "Camera"))]
 #[serde(default, deny_unknown_fields)]
 pub struct CameraOptions {
-    /// Camera file (YAML/TOML; see the camera crate). Default: a camera file found beside the input.
-    #[cfg_attr(feature = "cli", arg(long, conflicts_with = "preset"))]
+    /// Camera file (YAML or TOML; OpenCV, ORB-SLAM and EuRoC layouts). Default: camera.yaml beside the input.
+    #[cfg_attr(feature = "cli", arg(long, value_name = "FILE", conflicts_with = "preset"))]
     pub camera: Option<PathBuf>,
     /// Built-in camera preset.
-    #[cfg_attr(feature = "cli", arg(long, value_parser = clap::builder::PossibleValuesParser::new(presets::preset_names())))]
+    #[cfg_attr(feature = "cli", arg(long, value_name = "NAME", value_parser = clap::builder::PossibleValuesParser::new(presets::preset_names())))]
     pub preset: Option<String>,
     /// Focal length in pixels of an unknown camera (principal point at the image centre).
-    #[cfg_attr(feature = "cli", arg(long, conflicts_with_all = ["camera", "preset"]))]
+    #[cfg_attr(feature = "cli", arg(long, value_name = "PIXELS", conflicts_with_all = ["camera", "preset"]))]
     pub focal: Option<f64>,
 }
+
+/// The help heading of a run's input and output flags (the first group of
+/// `colslam run --help`).
+#[cfg(feature = "cli")]
+const IO_HEADING: &str = "Input and output";
 
 /// How the source is read.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[cfg_attr(feature = "cli", derive(clap::Args))]
-#[cfg_attr(feature = "cli", command(next_help_heading = "Input"))]
+#[cfg_attr(feature = "cli", command(next_help_heading = IO_HEADING))]
 #[serde(default, deny_unknown_fields)]
 pub struct InputOptions {
-    /// Use every s-th frame, at least 1.
-    #[cfg_attr(feature = "cli", arg(long, default_value_t = InputOptions::default().skip))]
+    /// Use every N-th frame, at least 1.
+    #[cfg_attr(feature = "cli", arg(long, value_name = "N", default_value_t = InputOptions::default().skip))]
     pub skip: usize,
-    /// Process at most this many frames (after skip), at least 1.
-    #[cfg_attr(feature = "cli", arg(long))]
+    /// Process at most this many frames (after skip), at least 1. Default: all.
+    #[cfg_attr(feature = "cli", arg(long, value_name = "N"))]
     pub max_frames: Option<usize>,
 }
 
@@ -81,11 +86,12 @@ pub struct RunOptions {
     /// The pipeline.
     #[cfg_attr(feature = "cli", command(flatten))]
     pub slam: SlamOptions,
-    /// Worker threads (0: all cores).
-    #[cfg_attr(feature = "cli", arg(long, default_value_t = 0, help_heading = "Output"))]
+    /// Worker threads (0: all cores). Not a flag of its own: the binary
+    /// sets it from its global `--threads`, which every subcommand shares.
+    #[cfg_attr(feature = "cli", arg(skip))]
     pub threads: usize,
     /// Write the COLMAP model as text instead of binary.
-    #[cfg_attr(feature = "cli", arg(long, help_heading = "Output"))]
+    #[cfg_attr(feature = "cli", arg(long, help_heading = IO_HEADING))]
     pub text: bool,
 }
 
@@ -114,11 +120,11 @@ impl RunOptions {
 pub struct RunConfig {
     /// Video file or image sequence folder (TUM, EuRoC, KITTI layouts or plain images).
     pub input: PathBuf,
-    /// Output folder.
-    #[cfg_attr(feature = "cli", arg(short, long))]
+    /// Output folder (created; a previous run's output there is replaced as a whole).
+    #[cfg_attr(feature = "cli", arg(short, long, value_name = "DIR", help_heading = IO_HEADING))]
     pub output: PathBuf,
     /// Ground-truth trajectory (TUM format) to evaluate the result against.
-    #[cfg_attr(feature = "cli", arg(long))]
+    #[cfg_attr(feature = "cli", arg(long, value_name = "FILE", help_heading = IO_HEADING))]
     pub gt: Option<PathBuf>,
     /// Where the camera comes from.
     #[cfg_attr(feature = "cli", command(flatten))]

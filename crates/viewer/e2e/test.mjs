@@ -323,7 +323,7 @@ await scenario('invalid settings are refused in the page', async () => {
 
 await scenario('a simulated live run: frames and keyframes arrive', async () => {
   await page.click('#run-btn');
-  await waitText('#run-msg', /Started/, 'run started');
+  await waitStats({ runState: 'running' }, 'run started');
   await rust('run-started');
   const seen = new Set();
   const live = cfg.live;
@@ -346,6 +346,15 @@ await scenario('a simulated live run: frames and keyframes arrive', async () => 
   await waitText('#run-note', /finished/, 'run finished');
   const lines = await page.getAttribute('#frame-view', 'data-flow-lines');
   if (lines !== String(live.flow_lines)) throw new Error(`flow lines ${lines}`);
+  // One line drawn per verified match; the rejected ones only on request.
+  await waitStats({ flowFrame: live.last_frame, flowLines: live.flow_lines, frameInliers: live.flow_lines, outlierLines: 0 }, 'verified flow lines');
+  await page.check('#show-outliers');
+  await waitStats({ flowLines: live.flow_lines, outlierLines: live.outlier_lines }, 'rejected matches shown');
+  await page.uncheck('#show-outliers');
+  await waitStats({ outlierLines: 0 }, 'rejected matches hidden');
+  // The status follows the run: finished with its line, no "Started." left.
+  await waitText('#status-line', new RegExp('^finished: ' + live.finished.replace(/[.*+?^${}()|[\]\\]/g, '\\$&') + '$'), 'finished status');
+  if ((await page.textContent('#run-msg')).trim()) throw new Error('run message left: ' + await page.textContent('#run-msg'));
   await page.waitForFunction(() => document.getElementById('frame-img').complete && document.getElementById('kf-img').complete);
   await page.waitForTimeout(300);
   await page.locator('#frame-view').screenshot({ path: shot('viewer-frame-view.png') });
@@ -356,6 +365,14 @@ await scenario('a simulated live run: frames and keyframes arrive', async () => 
   await page.evaluate(() => { document.getElementById('model-msg').textContent = ''; document.activeElement?.blur(); });
   await page.mouse.move(1, 1);
   await page.screenshot({ path: shot('viewer-overview.png') });
+});
+
+await scenario('a failed run shows its message', async () => {
+  await rust('live-failed');
+  await waitStats({ runState: 'failed' }, 'failed state');
+  await waitText('#status-line', new RegExp('^failed: ' + cfg.live.failed + '$'), 'failed status');
+  await waitText('#run-note', /^failed: /, 'failed run note');
+  if (!(await page.getAttribute('#status-line', 'class')).includes('bad')) throw new Error('failure not marked');
 });
 
 await scenario('large map: 100,000 points and 2,000 cameras', async () => {

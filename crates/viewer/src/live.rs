@@ -71,8 +71,9 @@ const MIN_RUN_STATE_DELAY: Duration = Duration::from_millis(100);
 
 /// What the run loop sends the bridge besides the pipeline's events.
 enum BridgeMsg {
-    /// The run's camera (OpenCV pixel convention), for the frusta.
-    Camera(Camera),
+    /// The run starts: its camera (OpenCV pixel convention, for the frusta)
+    /// and its number of frames when the source knows it.
+    Start { camera: Camera, frames: Option<usize> },
     /// A decoded frame; `image` is `None` when the bridge lagged.
     Frame { index: usize, name: String, image: Option<Image> },
 }
@@ -101,6 +102,8 @@ struct Bridge {
     frame_size: (usize, usize),
     started: Instant,
     frames_seen: usize,
+    /// Frames the run will read, when known.
+    total_frames: Option<usize>,
     /// No tracking events yet in the current map: frames are shown as they come.
     initializing: bool,
     last_frame_sent: Option<Instant>,
@@ -131,6 +134,7 @@ impl Bridge {
             frame_size: (0, 0),
             started: Instant::now(),
             frames_seen: 0,
+            total_frames: None,
             initializing: true,
             last_frame_sent: None,
             last_summary_sent: None,
@@ -173,7 +177,10 @@ impl Bridge {
 
     fn message(&mut self, m: BridgeMsg) {
         match m {
-            BridgeMsg::Camera(c) => self.camera = Some(c),
+            BridgeMsg::Start { camera, frames } => {
+                self.camera = Some(camera);
+                self.total_frames = frames;
+            }
             BridgeMsg::Frame { index, name, image } => {
                 self.frames_seen += 1;
                 let image = image.map(|img| {
@@ -218,6 +225,8 @@ impl Bridge {
     fn send_summary(&mut self) {
         let secs = self.started.elapsed().as_secs_f64();
         self.summary.fps = if secs > 0.0 { self.frames_seen as f64 / secs } else { 0.0 };
+        self.summary.frames = self.frames_seen;
+        self.summary.total_frames = self.total_frames;
         self.last_summary_sent = Some(Instant::now());
         (self.out)(ViewerUpdate::Summary(self.summary));
     }
@@ -228,7 +237,16 @@ impl Bridge {
 
     fn event(&mut self, ev: SlamEvent) {
         match ev {
-            SlamEvent::FrameProcessed { index, flow_score, num_matches, flow_lines, is_keyframe, .. } => {
+            SlamEvent::FrameProcessed {
+                index,
+                flow_score,
+                num_matches,
+                num_inliers,
+                flow_lines,
+                outlier_lines,
+                is_keyframe,
+                ..
+            } => {
                 self.initializing = false;
                 if !self.frame_due(is_keyframe) {
                     return;
@@ -239,14 +257,17 @@ impl Bridge {
                 };
                 // The pipeline sends [frame x, frame y, keyframe x, keyframe y];
                 // the viewer wants the keyframe end first.
-                let flow_lines =
-                    flow_lines.iter().map(|l| [l[2] * scale, l[3] * scale, l[0] * scale, l[1] * scale]).collect();
+                let page = |lines: Vec<[f32; 4]>| -> Vec<[f32; 4]> {
+                    lines.iter().map(|l| [l[2] * scale, l[3] * scale, l[0] * scale, l[1] * scale]).collect()
+                };
                 (self.out)(ViewerUpdate::Frame(FrameUpdate {
                     index,
                     image,
-                    flow_lines,
+                    flow_lines: page(flow_lines),
+                    outlier_lines: page(outlier_lines),
                     flow_score,
                     num_matches,
+                    num_inliers,
                     flow_threshold: self.flow_threshold,
                     min_matches: self.min_matches,
                     is_keyframe,
@@ -503,7 +524,7 @@ pub fn run_live(
         let hooks = RunHooks {
             cancel: vec![Arc::clone(&shared.cancel)],
             on_start: Some(Box::new(move |s: &RunStart| {
-                let _ = camera_tx.send(BridgeMsg::Camera(s.camera.clone()));
+                let _ = camera_tx.send(BridgeMsg::Start { camera: s.camera.clone(), frames: s.frames });
             })),
             before_frame: Some(Box::new(move |f: &colslam_io::Frame| {
                 // Never wait for the bridge: attach the picture only while it keeps up.
@@ -539,21 +560,19 @@ pub fn run_live(
     match &result {
         Ok(o) => {
             let r = &o.report;
-            let stopped = if shared.cancel.load(Ordering::SeqCst) { "stopped; " } else { "" };
-            handle.apply(ViewerUpdate::Status(format!(
-                "{stopped}done: {} frames, {} keyframes, {} points; outputs in {}",
-                r.frames,
-                r.keyframes,
-                r.points,
-                config.output.display()
-            )));
             if let Some(rec) = &final_model
                 && r.wall_time_s > 0.0
             {
                 let fps = r.frames as f64 / r.wall_time_s;
-                handle.apply(ViewerUpdate::Summary(Summary { fps, ..Summary::of(rec) }));
+                let (frames, total_frames) = (r.frames, Some(r.frames));
+                handle.apply(ViewerUpdate::Summary(Summary { fps, frames, total_frames, ..Summary::of(rec) }));
             }
-            handle.apply(ViewerUpdate::RunState(RunState::Finished));
+            let line = format!("{}; outputs in {}", r.headline(), config.output.display());
+            handle.apply(ViewerUpdate::Status(line.clone()));
+            handle.apply(ViewerUpdate::RunState(match r.stopped_after {
+                Some(_) => RunState::Stopped(line),
+                None => RunState::Finished(line),
+            }));
         }
         Err(e) => handle.apply(ViewerUpdate::RunState(RunState::Failed(error_chain(e)))),
     }
@@ -748,7 +767,7 @@ mod tests {
     fn bridge_turns_events_into_viewer_updates() {
         let (mut b, got, in_flight) = collecting();
         let cam = Camera::simple_pinhole(1280, 960, 1000.0, 639.5, 479.5);
-        b.message(BridgeMsg::Camera(cam));
+        b.message(BridgeMsg::Start { camera: cam, frames: Some(40) });
         // A 1280-wide frame while initialising: shown at once, downscaled by 2.
         in_flight.store(1, Ordering::SeqCst);
         b.message(BridgeMsg::Frame { index: 10, name: "a.png".into(), image: Some(Image::new(1280, 960, 1)) });
@@ -807,7 +826,9 @@ mod tests {
             timestamp: 1.0,
             flow_score: 0.1,
             num_matches: 50,
+            num_inliers: 1,
             flow_lines: vec![[100.0, 50.0, 60.0, 40.0]],
+            outlier_lines: vec![[10.0, 20.0, 30.0, 40.0]],
             is_keyframe: true,
         });
         b.event(SlamEvent::KeyframeAdded {
@@ -825,10 +846,15 @@ mod tests {
         // picture first when the frame interval since frame 10 has passed
         // (the bridge is still initialising then), which depends on timing.
         let lines = ups.iter().rev().find_map(|u| match u {
-            ViewerUpdate::Frame(f) => Some(f.flow_lines.clone()),
+            ViewerUpdate::Frame(f) => Some((f.flow_lines.clone(), f.outlier_lines.clone(), f.num_inliers)),
             _ => None,
         });
-        assert_eq!(lines, Some(vec![[30.0, 20.0, 50.0, 25.0]]));
+        assert_eq!(lines, Some((vec![[30.0, 20.0, 50.0, 25.0]], vec![[15.0, 20.0, 5.0, 10.0]], 1)));
+        let summary = ups.iter().rev().find_map(|u| match u {
+            ViewerUpdate::Summary(s) => Some(*s),
+            _ => None,
+        });
+        assert_eq!(summary.map(|s| (s.frames, s.total_frames)), Some((2, Some(40))), "progress: 2 of 40 frames read");
         let delta = ups.iter().find_map(|u| match u {
             ViewerUpdate::MapDelta(d) => Some(d.clone()),
             _ => None,

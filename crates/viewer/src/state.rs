@@ -202,7 +202,10 @@ impl State {
             self.points.keys().filter(|k| rec.point3d(colslam_scene::Point3DId(**k)).is_none()).copied().collect();
         self.apply_map_delta(delta);
         let v = self.bump();
-        self.summary = Stamped { value: Summary { fps: self.summary.value.fps, ..Summary::of(rec) }, version: v };
+        // The run's numbers (rate, progress) stay: the model is what it made.
+        let run = self.summary.value;
+        let summary = Summary { fps: run.fps, frames: run.frames, total_frames: run.total_frames, ..Summary::of(rec) };
+        self.summary = Stamped { value: summary, version: v };
         // No copy of `rec` is kept for export here: cloning the whole model at
         // every keyframe would slow the pipeline. Export during a run asks
         // the controller's snapshot(); a vanished model must not be exported.
@@ -342,11 +345,7 @@ impl State {
             out.insert("status".into(), json!(self.status.value));
         }
         if newer(self.run.version) {
-            let msg = match &self.run.value {
-                RunState::Failed(m) => m.clone(),
-                _ => String::new(),
-            };
-            out.insert("run".into(), json!({"state": self.run.value.name(), "message": msg}));
+            out.insert("run".into(), json!({"state": self.run.value.name(), "message": self.run.value.message()}));
         }
         if newer(self.source.version) {
             out.insert("source".into(), json!(self.source.value));
@@ -401,14 +400,15 @@ fn camera_json(c: &ViewerCamera) -> Value {
 }
 
 fn frame_json(f: &FrameUpdate, pic: Option<&Picture>) -> Value {
-    let lines: Vec<f32> = f.flow_lines.iter().flatten().copied().collect();
+    let flat = |lines: &[[f32; 4]]| -> Vec<f32> { lines.iter().flatten().copied().collect() };
     json!({
         "index": f.index,
         "picture": pic.map(|p| p.version),
         "width": pic.map(|p| p.image.width()),
         "height": pic.map(|p| p.image.height()),
-        "lines": lines,
-        "flow_score": f.flow_score, "num_matches": f.num_matches,
+        "lines": flat(&f.flow_lines),
+        "outlier_lines": flat(&f.outlier_lines),
+        "flow_score": f.flow_score, "num_matches": f.num_matches, "num_inliers": f.num_inliers,
         "flow_threshold": f.flow_threshold, "min_matches": f.min_matches,
         "is_keyframe": f.is_keyframe,
     })

@@ -218,8 +218,10 @@ fn event_stream_snapshot_increments_and_reconnect() {
         index: 12,
         image: Some(colslam_image::Image::new(8, 6, 3)),
         flow_lines: vec![[0.0, 0.0, 1.0, 1.0]],
+        outlier_lines: vec![[2.0, 2.0, 3.0, 3.0], [4.0, 4.0, 5.0, 5.0]],
         flow_score: 0.07,
         num_matches: 99,
+        num_inliers: 97,
         flow_threshold: 0.05,
         min_matches: 50,
         is_keyframe: true,
@@ -227,6 +229,8 @@ fn event_stream_snapshot_increments_and_reconnect() {
     let f = ev.next();
     assert_eq!(f["frame"]["index"], 12);
     assert_eq!(f["frame"]["lines"].as_array().map(Vec::len), Some(4));
+    assert_eq!(f["frame"]["outlier_lines"].as_array().map(Vec::len), Some(8));
+    assert_eq!((&f["frame"]["num_matches"], &f["frame"]["num_inliers"]), (&99.into(), &97.into()));
     assert!(f.get("points").is_none(), "a frame does not resend the map");
     let (code, png) = get(&v, &format!("/api/frame.png?v={}", f["frame"]["picture"]));
     assert_eq!(code, 200);
@@ -358,8 +362,13 @@ fn run_control() {
     assert_eq!(s["has_controller"], true);
     assert_eq!(post(&v, "/api/stop", "{}").0, 200);
     assert_eq!(*ctl.stopped.lock().expect("lock"), 1);
-    v.apply(ViewerUpdate::RunState(RunState::Finished));
-    assert_eq!(post(&v, "/api/run", settings).0, 200, "a new run after the last finished");
+    v.apply(ViewerUpdate::RunState(RunState::Stopped("3 of 9 frames localised; outputs in /o".into())));
+    let (_, s) = get_json(&v, "/api/state");
+    assert_eq!(
+        (&s["run"]["state"], &s["run"]["message"]),
+        (&"stopped".into(), &"3 of 9 frames localised; outputs in /o".into())
+    );
+    assert_eq!(post(&v, "/api/run", settings).0, 200, "a new run after the last ended");
 }
 
 #[test]

@@ -107,12 +107,17 @@ pub struct FrameUpdate {
     /// picture, only the numbers.
     pub image: Option<Image>,
     /// Flow lines `[x_keyframe, y_keyframe, x_frame, y_frame]` in the pixel
-    /// coordinates of `image`.
+    /// coordinates of `image`, one per verified match (geometric inlier).
     pub flow_lines: Vec<[f32; 4]>,
+    /// The same for a subsample of the matches verification rejected (the
+    /// page draws them on request, in another colour).
+    pub outlier_lines: Vec<[f32; 4]>,
     /// The frame's flow score (paper section 3.2).
     pub flow_score: f64,
     /// Matches against the last keyframe.
     pub num_matches: usize,
+    /// Of those, the verified ones (the pipeline's geometric inliers).
+    pub num_inliers: usize,
     /// The flow score a keyframe must exceed.
     pub flow_threshold: f64,
     /// The matches a keyframe needs.
@@ -147,18 +152,22 @@ pub struct Summary {
     pub mean_reproj_error: f64,
     /// Frames processed per second.
     pub fps: f64,
+    /// Frames of the run read so far (0 for a loaded model).
+    pub frames: usize,
+    /// Frames the run will read, when the source knows.
+    pub total_frames: Option<usize>,
 }
 
 impl Summary {
     /// Keyframes, points, observations and mean reprojection error of `rec`
-    /// (`fps` left at 0).
+    /// (no run: `fps` and `frames` left at 0).
     pub fn of(rec: &Reconstruction) -> Self {
         Self {
             keyframes: rec.num_registered_images(),
             points: rec.num_points3d(),
             observations: rec.num_observations(),
             mean_reproj_error: rec.mean_reprojection_error(),
-            fps: 0.0,
+            ..Self::default()
         }
     }
 }
@@ -169,12 +178,14 @@ pub enum RunState {
     /// Nothing running.
     #[default]
     Idle,
-    /// A run is in progress.
+    /// A run is in progress (its progress is in the [`Summary`]).
     Running,
     /// Stop was requested.
     Stopping,
-    /// The last run finished normally.
-    Finished,
+    /// The last run finished normally: what it made and where, in one line.
+    Finished(String),
+    /// The last run was stopped on request and wrote what it had: one line.
+    Stopped(String),
     /// The last run failed with this message.
     Failed(String),
 }
@@ -186,8 +197,17 @@ impl RunState {
             Self::Idle => "idle",
             Self::Running => "running",
             Self::Stopping => "stopping",
-            Self::Finished => "finished",
+            Self::Finished(_) => "finished",
+            Self::Stopped(_) => "stopped",
             Self::Failed(_) => "failed",
+        }
+    }
+
+    /// The line that goes with an ended run (empty otherwise).
+    pub fn message(&self) -> &str {
+        match self {
+            Self::Finished(m) | Self::Stopped(m) | Self::Failed(m) => m,
+            Self::Idle | Self::Running | Self::Stopping => "",
         }
     }
 }

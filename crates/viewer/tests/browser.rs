@@ -179,7 +179,14 @@ fn picture(frame: usize) -> colslam_image::Image {
 const LIVE_KEYFRAMES: usize = 10;
 const LIVE_POINTS: usize = 400;
 const FRAMES_PER_KEYFRAME: usize = 3;
+/// Verified matches of each simulated frame (one flow line each) and the
+/// rejected ones (drawn only on request).
 const FLOW_LINES: usize = 40;
+const OUTLIER_LINES: usize = 12;
+/// The line the simulated run ends with.
+const LIVE_FINISHED: &str = "30 of 30 frames localised, 10 keyframes, 400 points, 1 map; outputs in /data/out";
+/// The message of the simulated failed run.
+const LIVE_FAILED: &str = "no images in /data/empty";
 
 /// Feeds a simulated run: frames with flow lines, and at every third frame a
 /// keyframe with its camera and the points it introduces (map deltas).
@@ -197,12 +204,15 @@ fn feed_live_run(viewer: &Viewer) {
                     [x, y, x + 4.0 * (j + 1) as f32, y + 2.0]
                 })
                 .collect();
+            let outlier_lines = (0..OUTLIER_LINES).map(|l| [5.0, 5.0 + l as f32, 300.0, 200.0]).collect();
             viewer.apply(ViewerUpdate::Frame(FrameUpdate {
                 index: frame,
                 image: Some(picture(frame)),
                 flow_lines: lines,
+                outlier_lines,
                 flow_score: 0.02 * (j + 1) as f64,
                 num_matches: 300 - 20 * j,
+                num_inliers: FLOW_LINES,
                 flow_threshold: 0.05,
                 min_matches: 50,
                 is_keyframe: j + 1 == FRAMES_PER_KEYFRAME,
@@ -231,11 +241,13 @@ fn feed_live_run(viewer: &Viewer) {
             observations,
             mean_reproj_error: 0.42,
             fps: 11.5,
+            frames: frame,
+            total_frames: Some(LIVE_KEYFRAMES * FRAMES_PER_KEYFRAME),
         }));
         viewer.apply(ViewerUpdate::Status(format!("registered keyframe {}", image_id.0)));
         std::thread::sleep(Duration::from_millis(80));
     }
-    viewer.apply(ViewerUpdate::RunState(RunState::Finished));
+    viewer.apply(ViewerUpdate::RunState(RunState::Finished(LIVE_FINISHED.into())));
 }
 
 const RESTART_CAMERAS: usize = 3;
@@ -349,6 +361,7 @@ fn browser_end_to_end() {
         "live": {
             "cameras": LIVE_KEYFRAMES, "points": LIVE_POINTS, "last_keyframe_id": LIVE_KEYFRAMES,
             "last_frame": LIVE_KEYFRAMES * FRAMES_PER_KEYFRAME, "flow_lines": FLOW_LINES,
+            "outlier_lines": OUTLIER_LINES, "finished": LIVE_FINISHED, "failed": LIVE_FAILED,
         },
     });
     let config_path = work.path().join("config.json");
@@ -438,6 +451,11 @@ fn browser_end_to_end() {
             Some("live") => {
                 feed_live_run(&viewer);
                 writeln!(stdin, "DONE live").expect("ack");
+            }
+            Some("live-failed") => {
+                viewer.apply(ViewerUpdate::RunState(RunState::Running));
+                viewer.apply(ViewerUpdate::RunState(RunState::Failed(LIVE_FAILED.into())));
+                writeln!(stdin, "DONE live-failed").expect("ack");
             }
             Some(other) => panic!("unknown step {other}"),
             None => result = line,

@@ -12,7 +12,7 @@ const model = {
   points: new Map(),   // id -> {x, y, z, r, g, b, track: number[]}
   cameras: new Map(),  // image id -> camera JSON (c, r, w, h, fx, fy, cx, cy, order, name)
   frame: null, keyframe: null, summary: null, source: '', hasController: false,
-  run: { state: 'idle', message: '' },
+  run: { state: 'idle', message: '' }, status: '',
   images: null,        // {available, note} for a loaded model; null for a live map
   gt: null,            // ground-truth layer: {ate_rmse, matched, scale, path, ids, errors}
 };
@@ -59,8 +59,9 @@ function applyUpdate(msg) {
   if ('frame' in msg) showFrame(msg.frame); else if (msg.full) clearFrame();
   if ('keyframe' in msg) showKeyframe(msg.keyframe); else if (msg.full) clearKeyframe();
   if ('summary' in msg) showSummary(msg.summary);
-  if ('status' in msg) $('status-line').textContent = msg.status || '';
+  if ('status' in msg) model.status = msg.status || '';
   if ('run' in msg) model.run = msg.run;
+  if ('status' in msg || 'run' in msg || 'summary' in msg) showRunStatus();
   if ('source' in msg) { model.source = msg.source; $('source').textContent = msg.source || '–'; }
   if ('images' in msg) model.images = msg.images;
   if ('gt' in msg) showGroundTruth(msg.gt);
@@ -98,6 +99,7 @@ function showFrame(f) {
   const nm = $('num-matches');
   nm.textContent = f.num_matches; nm.className = okMatch ? 'ok' : 'bad';
   $('min-matches').textContent = f.min_matches;
+  $('num-inliers').textContent = f.num_inliers;
   const fv = $('frame-view');
   fv.setAttribute('data-frame-index', f.index);
   fv.setAttribute('data-flow-lines', f.lines.length / 4);
@@ -125,19 +127,36 @@ function drawFlow() {
   cv.style.left = (img.offsetLeft + (bw - w) / 2) + 'px'; cv.style.top = (img.offsetTop + (bh - h) / 2) + 'px';
   const ctx = cv.getContext('2d');
   ctx.clearRect(0, 0, w, h);
-  if (!f || !f.width || !w) return;
-  const sx = w / f.width, sy = h / f.height;
-  ctx.strokeStyle = '#39f'; ctx.lineWidth = 1.2; ctx.beginPath();
-  for (let i = 0; i + 3 < f.lines.length; i += 4) {
-    ctx.moveTo(f.lines[i] * sx, f.lines[i + 1] * sy);
-    ctx.lineTo(f.lines[i + 2] * sx, f.lines[i + 3] * sy);
+  let nIn = 0, nOut = 0;
+  if (f && f.width && w) {
+    const sx = w / f.width, sy = h / f.height;
+    const stroke = (lines, color) => {
+      ctx.strokeStyle = color; ctx.lineWidth = 1.2; ctx.beginPath();
+      let n = 0;
+      for (let i = 0; i + 3 < lines.length; i += 4, n++) {
+        ctx.moveTo(lines[i] * sx, lines[i + 1] * sy);
+        ctx.lineTo(lines[i + 2] * sx, lines[i + 3] * sy);
+      }
+      ctx.stroke();
+      return n;
+    };
+    // Rejected matches (on request) under the verified ones.
+    if ($('show-outliers').checked) nOut = stroke(f.outlier_lines || [], '#e5484d');
+    nIn = stroke(f.lines, '#39f');
   }
-  ctx.stroke();
+  // What was drawn, for the frame it was drawn for (tests compare the
+  // line count with the frame's verified matches).
+  setStat('flow-frame', f ? f.index : -1);
+  setStat('flow-lines', nIn);
+  setStat('outlier-lines', nOut);
+  setStat('frame-matches', f ? f.num_matches : 0);
+  setStat('frame-inliers', f ? f.num_inliers : 0);
 }
+$('show-outliers').addEventListener('change', () => drawFlow());
 function clearFrame() {
   frameLines = null; framePending = null;
   $('frame-img').removeAttribute('src');
-  for (const id of ['frame-index', 'flow-score', 'flow-threshold', 'num-matches', 'min-matches']) $(id).textContent = '–';
+  for (const id of ['frame-index', 'flow-score', 'flow-threshold', 'num-matches', 'min-matches', 'num-inliers']) $(id).textContent = '–';
   $('kf-badge').hidden = true;
   $('frame-view').removeAttribute('data-frame-index');
   drawFlow();
@@ -156,6 +175,7 @@ function showKeyframe(k) {
 }
 function showSummary(s) {
   if (!s) return;
+  model.summary = s;
   $('sum-keyframes').textContent = s.keyframes;
   $('sum-points').textContent = s.points;
   $('sum-observations').textContent = s.observations;
@@ -600,7 +620,8 @@ function readSettings() {
 $('run-btn').addEventListener('click', async () => {
   let s;
   try { s = readSettings(); } catch (e) { return message('run-msg', e.message, 'error'); }
-  try { await post('/api/run', s); message('run-msg', 'Started.', 'info'); } catch (e) { message('run-msg', e.message, 'error'); }
+  // The run's state follows in the status line (running, finished, failed).
+  try { await post('/api/run', s); message('run-msg', ''); } catch (e) { message('run-msg', e.message, 'error'); }
 });
 $('stop-btn').addEventListener('click', async () => {
   try { await post('/api/stop', {}); message('run-msg', 'Stopping…', 'info'); } catch (e) { message('run-msg', e.message, 'error'); }
@@ -611,7 +632,28 @@ function updateRunButtons() {
   $('stop-btn').disabled = !model.hasController || !running;
   $('run-note').textContent = !model.hasController
     ? 'Run is off: no pipeline attached (start with `colslam run … --view`).'
-    : 'State: ' + model.run.state + (model.run.message ? ' – ' + model.run.message : '');
+    : (runLine() || 'idle');
+}
+// The run in one line: "running: frame 12/40", "finished: …", "failed: …",
+// "stopped: …"; empty when no run was started (a loaded model).
+function runLine() {
+  const r = model.run, s = model.summary;
+  switch (r.state) {
+    case 'running': {
+      const progress = s && s.frames ? ': frame ' + s.frames + (s.total_frames ? '/' + s.total_frames : '') : '';
+      return 'running' + progress + (model.status ? ' · ' + model.status : '');
+    }
+    case 'stopping': return 'stopping after the current frame…';
+    case 'finished': case 'stopped': case 'failed': return r.state + (r.message ? ': ' + r.message : '');
+    default: return '';
+  }
+}
+function showRunStatus() {
+  const line = runLine();
+  $('status-line').textContent = line || model.status;
+  $('status-line').className = model.run.state === 'failed' ? 'bad' : '';
+  setStat('run-state', model.run.state);
+  updateRunButtons();
 }
 
 // Max-frames bound: asked from the server whenever input or skip change.

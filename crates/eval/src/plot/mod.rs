@@ -322,11 +322,21 @@ fn ticks(lo: f64, hi: f64) -> Vec<(f64, String)> {
 
 /// Four significant digits, without exponent for the usual metre range.
 fn fmt_sig(v: f64) -> String {
+    format_significant(v, 4)
+}
+
+/// `v` with `digits` significant digits (at least 1) in fixed notation:
+/// decimals only where they are significant (at most 9), so a large value
+/// keeps all its integer digits (`30.6228` to 3 digits is `30.6`, `3062.8`
+/// is `3063`, `0.5` is `0.500`). Zero and non-finite values print as Rust
+/// does (`0`, `NaN`, `inf`).
+pub fn format_significant(v: f64, digits: usize) -> String {
     if v == 0.0 || !v.is_finite() {
         return format!("{v}");
     }
-    let digits = (3 - v.abs().log10().floor() as i64).clamp(0, 9) as usize;
-    format!("{v:.digits$}")
+    let digits = digits.clamp(1, 17) as i64;
+    let decimals = (digits - 1 - v.abs().log10().floor() as i64).clamp(0, 9) as usize;
+    format!("{v:.decimals$}")
 }
 
 #[cfg(test)]
@@ -351,5 +361,9 @@ mod tests {
         assert_eq!(fmt_sig(0.023456), "0.02346");
         assert_eq!(fmt_sig(1.5), "1.500");
         assert_eq!(fmt_sig(1234.5), "1234");
+        assert_eq!(format_significant(30.6228, 3), "30.6");
+        assert_eq!(format_significant(306.228, 3), "306");
+        assert_eq!(format_significant(0.5, 3), "0.500");
+        assert_eq!(format_significant(0.0, 3), "0");
     }
 }

@@ -149,12 +149,15 @@ fn run_with_view_streams_keyframes_live() {
     let dir = tempfile::tempdir().expect("tempdir");
     let seq = synthetic(dir.path());
     let out = dir.path().join("out");
+    let gt = seq.join("groundtruth.txt");
     let (mut child, url, _stdout) = spawn_viewer(&[
         "-q".as_ref(),
         "run".as_ref(),
         seq.as_os_str(),
         "-o".as_ref(),
         out.as_os_str(),
+        "--gt".as_ref(),
+        gt.as_os_str(),
         "--view".as_ref(),
         "--port".as_ref(),
         "0".as_ref(),
@@ -192,6 +195,15 @@ fn run_with_view_streams_keyframes_live() {
     let report: Value =
         serde_json::from_str(&std::fs::read_to_string(out.join("report.json")).expect("report")).expect("json");
     assert_eq!(last_summary["points"], report["points"], "the final model is shown");
+    // With --gt the final model comes with the comparison layer: the
+    // model's cameras (the keyframes) against the ground truth, each one
+    // matched. The report's ATE is over every localised frame, so the two
+    // figures differ.
+    let layer = events.iter().rev().find_map(|e| e.get("gt").filter(|g| !g.is_null())).expect("a ground-truth layer");
+    let (layer_ate, run_ate) = (layer["ate_rmse"].as_f64(), report["eval"]["ate_rmse"].as_f64());
+    assert!(layer_ate.is_some_and(|a| a.is_finite() && a >= 0.0), "{layer}");
+    assert!(run_ate.is_some(), "the run evaluated: {}", report["eval"]);
+    assert_eq!(layer["matched"].as_u64(), report["keyframes"].as_u64(), "one pose per keyframe of the model");
 }
 
 #[test]

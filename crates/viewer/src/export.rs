@@ -91,16 +91,21 @@ pub(crate) fn name_timestamp(name: &str) -> Option<f64> {
     stem.parse::<f64>().ok().filter(|t| t.is_finite())
 }
 
-/// The registered images of `rec` as a trajectory with the timestamps of
-/// [`tum_trajectory`] (sorted by time), and the image id of each pose.
-pub(crate) fn model_trajectory(rec: &Reconstruction) -> (colslam_eval::Trajectory, Vec<u32>) {
+/// The registered images of `rec` as a trajectory (sorted by time), and the
+/// image id of each pose: the timestamps `stamp_of` knows by image name (a
+/// run knows its frames' times), else those of [`tum_trajectory`].
+pub(crate) fn model_trajectory_timed(
+    rec: &Reconstruction,
+    stamp_of: &dyn Fn(&str) -> Option<f64>,
+) -> (colslam_eval::Trajectory, Vec<u32>) {
     let mut rows: Vec<(f64, u32, colslam_geometry::Rigid3)> = rec
         .registered_image_ids()
         .iter()
         .enumerate()
         .filter_map(|(order, id)| {
             let img = rec.image(*id)?;
-            Some((name_timestamp(&img.name).unwrap_or(order as f64), id.0, img.cam_from_world))
+            let t = stamp_of(&img.name).or_else(|| name_timestamp(&img.name)).unwrap_or(order as f64);
+            Some((t, id.0, img.cam_from_world))
         })
         .collect();
     rows.sort_by(|a, b| a.0.total_cmp(&b.0));

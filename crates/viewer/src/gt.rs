@@ -4,7 +4,7 @@
 //! estimate in the model's frame, so the ground truth is brought into it
 //! with the inverse of the alignment.
 
-use crate::export::model_trajectory;
+use crate::export::model_trajectory_timed;
 use colslam_eval::{EvalError, EvalOptions, Trajectory, evaluate_named};
 use colslam_scene::Reconstruction;
 use serde_json::{Value, json};
@@ -32,7 +32,19 @@ impl GroundTruthLayer {
     /// as the TUM export writes them) with `gt` using `colslam eval`'s
     /// defaults (Sim(3) alignment, 10 ms association).
     pub fn compute(rec: &Reconstruction, gt: &Trajectory, name: &str) -> Result<GroundTruthLayer, EvalError> {
-        let (est, ids) = model_trajectory(rec);
+        Self::compute_timed(rec, gt, name, &|_| None)
+    }
+
+    /// [`Self::compute`] with the images' timestamps that `stamp_of` knows
+    /// by image name (a finished run knows every frame's time, which an
+    /// image name need not hold).
+    pub fn compute_timed(
+        rec: &Reconstruction,
+        gt: &Trajectory,
+        name: &str,
+        stamp_of: &dyn Fn(&str) -> Option<f64>,
+    ) -> Result<GroundTruthLayer, EvalError> {
+        let (est, ids) = model_trajectory_timed(rec, stamp_of);
         let report = evaluate_named(gt, &est, name, "the model's cameras", &EvalOptions::default())?;
         let detail = &report.detail;
         let model_from_gt = detail.transform.inverse();

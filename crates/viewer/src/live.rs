@@ -553,6 +553,19 @@ pub fn run_live(
     };
     if let Some(rec) = &final_model {
         handle.set_reconstruction_from(rec, &config.output.display().to_string());
+        // `--gt`: the comparison layer on the final poses, as `view --gt`
+        // shows it for a loaded model; the run's report holds the same ATE.
+        if let (Some(gt), Ok(o)) = (&config.gt, &result) {
+            let name = gt.display().to_string();
+            let stamps: HashMap<&str, f64> = o.result.frames.iter().map(|f| (f.name.as_str(), f.timestamp)).collect();
+            let stamp_of = |image: &str| stamps.get(image).copied();
+            match colslam_eval::Trajectory::read_tum(gt)
+                .and_then(|traj| crate::GroundTruthLayer::compute_timed(rec, &traj, &name, &stamp_of))
+            {
+                Ok(layer) => handle.set_ground_truth(Some(layer)),
+                Err(e) => tracing::warn!("no ground-truth layer for {name}: {}", error_chain(&e)),
+            }
+        }
     }
     if let Some(rest) = final_not_before.checked_duration_since(Instant::now()) {
         std::thread::sleep(rest);

@@ -162,7 +162,7 @@ fn a_run_report_names_the_input_and_its_frames() {
 fn the_ground_truth_layer_reaches_the_page() {
     let rec = demo_reconstruction(6, 40, 2).expect("demo");
     // Ground truth: the camera centres scaled by 2 and shifted, one moved.
-    let (est, _) = export::model_trajectory(&rec);
+    let (est, _) = export::model_trajectory_timed(&rec, &|_| None);
     let mut gt = est.clone();
     for (i, p) in gt.poses.iter_mut().enumerate() {
         p.translation = p.translation * 2.0 + colslam_geometry::Vec3::new(1.0, 2.0, 3.0);

@@ -115,15 +115,21 @@ pub fn run(args: &ViewArgs, threads: usize) -> Result<()> {
         ),
         None => None,
     };
-    let images = match &args.images {
-        Some(dir) => Some(ImageSource::given(dir).context("--images")?),
-        None => None,
+    let images = match (&args.images, &model, &args.model) {
+        (Some(dir), _, _) => Some(ImageSource::given(dir).context("--images")?),
+        (None, Some(rec), Some(dir)) => Some(ImageSource::discover(dir, rec)),
+        _ => None,
     };
     let gt = match (&args.gt, &model) {
         (Some(file), Some(rec)) => {
             let traj = colslam_eval::Trajectory::read_tum(file)?;
             let name = file.display().to_string();
-            Some(GroundTruthLayer::compute(rec, &traj, &name).with_context(|| format!("comparing with {name}"))?)
+            // The frames' times as the run read them (a list's stamps), else
+            // those in the image names.
+            let stamp_of = |image: &str| images.as_ref().and_then(|i| i.timestamp(image));
+            let layer = GroundTruthLayer::compute_timed(rec, &traj, &name, &stamp_of)
+                .with_context(|| format!("comparing with {name}"))?;
+            Some(layer)
         }
         _ => None,
     };
@@ -142,7 +148,9 @@ pub fn run(args: &ViewArgs, threads: usize) -> Result<()> {
     }
     if let (Some(rec), Some(dir)) = (&model, &args.model) {
         viewer.set_reconstruction_from(rec, &dir.display().to_string());
-        viewer.set_images(images.unwrap_or_else(|| ImageSource::discover(dir, rec)));
+        if let Some(images) = images {
+            viewer.set_images(images);
+        }
         if let Some(layer) = gt {
             outln!("ground truth: ATE {:.6} m over {} poses (Sim(3))", layer.ate_rmse, layer.matched);
             viewer.set_ground_truth(Some(layer));

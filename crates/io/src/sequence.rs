@@ -156,6 +156,12 @@ impl ImageSequence {
         self.entries.iter().map(|e| e.path.as_path())
     }
 
+    /// Paths of the selected images with the timestamps their frames get,
+    /// in output order (no decoding).
+    pub fn timed_paths(&self) -> impl Iterator<Item = (&Path, f64)> {
+        self.entries.iter().map(|e| (e.path.as_path(), e.timestamp))
+    }
+
     /// Adds the list-file context to an image error from the header reader.
     fn in_context(&self, err: SourceError, e: &Entry) -> SourceError {
         match err {

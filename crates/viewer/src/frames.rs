@@ -37,6 +37,9 @@ pub enum ImageSource {
         input: PathBuf,
         /// File name -> path of every listed frame.
         files: HashMap<String, PathBuf>,
+        /// File name -> the frame's timestamp as the run saw it (from the
+        /// layout's list), which an image name need not hold.
+        stamps: HashMap<String, f64>,
     },
     /// The frames of a video input, decoded through the project's video
     /// source (`ffmpeg`) by the source index in the frame's name.
@@ -158,6 +161,15 @@ impl ImageSource {
         }
     }
 
+    /// The timestamp of the model's image `name` when this source knows it
+    /// (a run's listed input), for comparing the model with a ground truth.
+    pub fn timestamp(&self, name: &str) -> Option<f64> {
+        match self {
+            ImageSource::Sequence { stamps, .. } => stamps.get(name).copied(),
+            _ => None,
+        }
+    }
+
     /// Whether pictures can be asked for at all.
     pub fn available(&self) -> bool {
         !matches!(self, ImageSource::Missing(_))
@@ -173,11 +185,14 @@ fn from_report(report: &Path) -> Option<ImageSource> {
         Layout::Video { file } => Some(ImageSource::Video(file)),
         layout => {
             let seq = ImageSequence::open_layout(&input, layout, &SourceOptions::default()).ok()?;
-            let files = seq
-                .paths()
-                .filter_map(|p| Some((p.file_name()?.to_string_lossy().into_owned(), p.to_path_buf())))
-                .collect();
-            Some(ImageSource::Sequence { input, files })
+            let (mut files, mut stamps) = (HashMap::new(), HashMap::new());
+            for (path, t) in seq.timed_paths() {
+                let Some(name) = path.file_name() else { continue };
+                let name = name.to_string_lossy().into_owned();
+                stamps.insert(name.clone(), t);
+                files.insert(name, path.to_path_buf());
+            }
+            Some(ImageSource::Sequence { input, files, stamps })
         }
     }
 }
@@ -225,7 +240,7 @@ pub fn load_picture(
             }
             colslam_image::Image::read(&path).map_err(|source| PictureError::Decode { name: name.clone(), source })?
         }
-        ImageSource::Sequence { input, files } => {
+        ImageSource::Sequence { input, files, .. } => {
             let path = files
                 .get(name)
                 .ok_or_else(|| PictureError::Missing(format!("{name:?} is not a frame of {}", input.display())))?;

@@ -848,11 +848,19 @@ fn api_camera(s: &mut TcpStream, req: &Request, shared: &Shared) -> std::io::Res
         Ok(id) => id,
         Err(e) => return respond_error(s, 400, &e),
     };
-    let Some(rec) = shared.lock().model_and_images().0 else {
+    let (Some(rec), images) = shared.lock().model_and_images() else {
         return respond_error(s, 404, "no loaded model (a live map has no keypoints to show)");
     };
     match crate::frames::camera_detail(&rec, id, outlier_threshold()) {
-        Some(v) => respond_json(s, 200, &v),
+        Some(mut v) => {
+            // The frame's time as the run read it, when the images' source
+            // knows it (a list's stamps rather than the image name).
+            let listed = rec.image(colslam_scene::ImageId(id)).and_then(|img| images?.timestamp(&img.name));
+            if let Some(t) = listed {
+                v["timestamp"] = Value::from(t);
+            }
+            respond_json(s, 200, &v)
+        }
         None => respond_error(s, 404, &format!("the model has no image {id}")),
     }
 }

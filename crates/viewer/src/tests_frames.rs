@@ -159,6 +159,41 @@ fn a_run_report_names_the_input_and_its_frames() {
 }
 
 #[test]
+fn a_run_report_gives_the_frames_times_to_the_ground_truth_layer() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let input = dir.path().join("seq");
+    let rec = demo_reconstruction(3, 30, 1).expect("demo");
+    write_pictures(&rec, &input);
+    // A TUM list: the frames' times are in rgb.txt, not in their names.
+    let mut names: Vec<String> =
+        rec.registered_image_ids().iter().filter_map(|id| rec.image(*id)).map(|i| i.name.clone()).collect();
+    names.sort();
+    let list: String = names.iter().enumerate().map(|(k, n)| format!("{} {n}\n", 100.5 + 0.1 * k as f64)).collect();
+    std::fs::write(input.join("rgb.txt"), list).expect("rgb.txt");
+    let out = dir.path().join("out");
+    std::fs::create_dir_all(&out).expect("mkdir");
+    std::fs::write(out.join("report.json"), serde_json::json!({ "input": input }).to_string()).expect("report");
+    let source = ImageSource::discover(&out, &rec);
+    assert_eq!(source.timestamp(&names[1]), Some(100.6), "{source:?}");
+    // A ground truth in the list's times: the cameras' own poses.
+    let stamp_of = |n: &str| source.timestamp(n);
+    let (est, _) = export::model_trajectory_timed(&rec, &stamp_of);
+    assert_eq!(est.stamps.first().copied(), Some(100.5));
+    let layer = GroundTruthLayer::compute_timed(&rec, &est, "gt.tum", &stamp_of).expect("layer");
+    assert_eq!(layer.matched, 3);
+    assert!(layer.ate_rmse < 1e-9, "{}", layer.ate_rmse);
+    // The names alone hold no such times: nothing would be compared.
+    assert!(GroundTruthLayer::compute(&rec, &est, "gt.tum").is_err());
+    // The page's camera info gives the listed time too.
+    let id = rec.registered_image_ids().iter().find(|i| rec.image(**i).is_some_and(|im| im.name == names[1]));
+    let id = id.expect("the second frame's image").0;
+    let v = start();
+    v.set_reconstruction(&rec);
+    v.set_images(source);
+    assert_eq!(get_json(&v, &format!("/api/camera?id={id}")).1["timestamp"], 100.6);
+}
+
+#[test]
 fn the_ground_truth_layer_reaches_the_page() {
     let rec = demo_reconstruction(6, 40, 2).expect("demo");
     // Ground truth: the camera centres scaled by 2 and shifted, one moved.

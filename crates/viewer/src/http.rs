@@ -926,7 +926,7 @@ fn api_max_frames(s: &mut TcpStream, req: &Request, shared: &Shared) -> std::io:
     };
     match ctl.max_frames_for(&input, skip) {
         Ok(n) => respond_json(s, 200, &json!({ "max_frames": n })),
-        Err(e) => respond_error(s, 400, &e),
+        Err(e) => respond_error(s, e.status(), &colslam_slam::error_chain(&e)),
     }
 }
 
@@ -936,7 +936,7 @@ fn api_run(s: &mut TcpStream, req: &Request, shared: &Shared) -> std::io::Result
     };
     let settings = match RunSettings::from_json(&req.body) {
         Ok(v) => v,
-        Err(e) => return respond_error(s, 400, &e.to_string()),
+        Err(e) => return respond_error(s, 400, &colslam_slam::error_chain(&e)),
     };
     {
         let st = shared.lock();
@@ -950,7 +950,7 @@ fn api_run(s: &mut TcpStream, req: &Request, shared: &Shared) -> std::io::Result
             shared.update(|st| st.apply(ViewerUpdate::RunState(RunState::Running)));
             respond_json(s, 200, &json!({ "ok": true }))
         }
-        Err(e) => respond_error(s, 400, &e),
+        Err(e) => respond_error(s, e.status(), &colslam_slam::error_chain(&e)),
     }
 }
 

@@ -52,8 +52,8 @@ pub use http::REQUEST_DEADLINE;
 pub use http::{BadRequest, Request, parse_request_head};
 pub use live::{MAX_IMAGES_IN_FLIGHT, RunShared, ViewController, run_args_from_settings, run_live};
 pub use types::{
-    Extractor, FrameUpdate, KeyframeUpdate, MapDelta, Matcher, RunController, RunSettings, RunState, SettingsError,
-    Summary, ViewerCamera, ViewerPoint, ViewerUpdate,
+    ControlError, Extractor, FrameUpdate, KeyframeUpdate, MapDelta, Matcher, RunController, RunSettings, RunState,
+    SettingsError, Summary, ViewerCamera, ViewerPoint, ViewerUpdate,
 };
 
 use colslam_image::Image;

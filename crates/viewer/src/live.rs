@@ -20,8 +20,8 @@
 //! with [`run_live`]'s `extra` ([`RunHooks::then`] combines them).
 
 use crate::{
-    FrameUpdate, KeyframeUpdate, MapDelta, RunController, RunSettings, RunState, Summary, VIEW_MAX_WIDTH, ViewerCamera,
-    ViewerHandle, ViewerPoint, ViewerUpdate, downscale_for_view,
+    ControlError, FrameUpdate, KeyframeUpdate, MapDelta, RunController, RunSettings, RunState, Summary, VIEW_MAX_WIDTH,
+    ViewerCamera, ViewerHandle, ViewerPoint, ViewerUpdate, downscale_for_view,
 };
 use colslam_camera::Camera;
 use colslam_image::Image;
@@ -623,22 +623,22 @@ impl ViewController {
 
 /// The run the page's settings select, on top of `base`, validated by the
 /// library's options (the output may not be a file).
-pub fn run_args_from_settings(base: &RunOptions, s: &RunSettings) -> Result<RunConfig, String> {
+pub fn run_args_from_settings(base: &RunOptions, s: &RunSettings) -> Result<RunConfig, ControlError> {
     let config = s.to_config(base)?;
-    config.validate().map_err(|e| error_chain(&e))?;
+    config.validate()?;
     Ok(config)
 }
 
 impl RunController for ViewController {
-    fn start(&self, settings: RunSettings) -> Result<(), String> {
+    fn start(&self, settings: RunSettings) -> Result<(), ControlError> {
         let args = run_args_from_settings(&self.base, &settings)?;
         // A bad or busy output and a bad input are reported to the page at
         // once rather than as a failed run.
-        args.check_output().map_err(|e| error_chain(&e))?;
+        args.check_output()?;
         let src = args.options.source();
-        colslam_io::probe_source(&args.input, &src).map_err(|e| error_chain(&e))?;
+        colslam_io::probe_source(&args.input, &src)?;
         if !self.shared.try_begin() {
-            return Err("a run is already in progress; stop it first".into());
+            return Err(ControlError::Busy);
         }
         let (handle, shared) = (self.handle.clone(), Arc::clone(&self.shared));
         let not_before = Instant::now() + MIN_RUN_STATE_DELAY;
@@ -661,7 +661,7 @@ impl RunController for ViewController {
             }
             Err(e) => {
                 self.shared.end();
-                Err(format!("cannot start the run thread: {e}"))
+                Err(ControlError::Thread(e))
             }
         }
     }
@@ -670,10 +670,10 @@ impl RunController for ViewController {
         self.shared.stop();
     }
 
-    fn max_frames_for(&self, input: &Path, skip: usize) -> Result<usize, String> {
+    fn max_frames_for(&self, input: &Path, skip: usize) -> Result<usize, ControlError> {
         let opts = colslam_io::SourceOptions { skip: skip.max(1), ..Default::default() };
-        let info = colslam_io::probe_source(input, &opts).map_err(|e| error_chain(&e))?;
-        info.frames.ok_or_else(|| format!("{}: the number of frames is not known in advance", input.display()))
+        let info = colslam_io::probe_source(input, &opts)?;
+        info.frames.ok_or_else(|| ControlError::UnknownFrameCount(input.to_path_buf()))
     }
 
     fn snapshot(&self) -> Option<Reconstruction> {
@@ -711,11 +711,12 @@ mod tests {
             ..RunSettings::default()
         };
         let e = controller.start(settings(&file.join("out"))).expect_err("under a file");
-        assert!(e.contains("is a file"), "{e}");
+        assert!(matches!(e, ControlError::Run(_)) && e.status() == 400, "{e:?}");
+        assert!(error_chain(&e).contains("is a file"), "{e}");
         let out = dir.path().join("out");
         let busy = colslam_slam::begin_run_output(&out).expect("lock");
         let e = controller.start(settings(&out)).expect_err("busy");
-        assert!(e.contains("another process"), "{e}");
+        assert!(error_chain(&e).contains("another process"), "{e}");
         drop(busy);
         assert!(shared.try_begin(), "no run was started");
     }

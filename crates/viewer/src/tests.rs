@@ -293,11 +293,11 @@ struct MockController {
 }
 
 impl RunController for MockController {
-    fn start(&self, settings: RunSettings) -> Result<(), String> {
+    fn start(&self, settings: RunSettings) -> Result<(), ControlError> {
         if settings.input.to_string_lossy().contains("missing") {
-            return Err("input not found".into());
+            return Err(ControlError::Input(colslam_io::SourceError::NotFound { path: settings.input }));
         }
-        self.started.lock().map_err(|e| e.to_string())?.push(settings);
+        self.started.lock().unwrap_or_else(|e| e.into_inner()).push(settings);
         Ok(())
     }
     fn stop(&self) {
@@ -305,10 +305,10 @@ impl RunController for MockController {
             *s += 1;
         }
     }
-    fn max_frames_for(&self, input: &std::path::Path, skip: usize) -> Result<usize, String> {
+    fn max_frames_for(&self, input: &std::path::Path, skip: usize) -> Result<usize, ControlError> {
         self.probes.fetch_add(1, std::sync::atomic::Ordering::SeqCst);
         if input.to_string_lossy().contains("missing") {
-            return Err(format!("{}: not found", input.display()));
+            return Err(ControlError::Input(colslam_io::SourceError::NotFound { path: input.to_path_buf() }));
         }
         Ok(100usize.div_ceil(skip))
     }
@@ -695,8 +695,13 @@ fn run_settings_parse_as_a_pure_function() {
     assert_eq!((s.skip, s.init_frames), (2, RunSettings::default().init_frames));
     assert!(matches!(RunSettings::from_json(b"{"), Err(SettingsError::Json(_))));
     assert!(matches!(RunSettings::from_json(br#"{"input":"/a","output":"/b","x":1}"#), Err(SettingsError::Json(_))));
+    // Out of the pipeline's range: its own check says why.
     assert!(matches!(
         RunSettings::from_json(br#"{"input":"/a","output":"/b","skip":0}"#),
+        Err(SettingsError::Options(_))
+    ));
+    assert!(matches!(
+        RunSettings::from_json(br#"{"input":"/a","output":"/b","skip":-1}"#),
         Err(SettingsError::Invalid(_))
     ));
     assert!(matches!(RunSettings::from_json(br#"{"input":"","output":"/b"}"#), Err(SettingsError::Invalid(_))));

@@ -296,9 +296,47 @@ pub enum SettingsError {
     /// Not JSON, or JSON that is not [`RunSettings`] (unknown fields, wrong types).
     #[error("invalid settings: {0}")]
     Json(#[from] serde_json::Error),
-    /// Well-formed settings outside the pipeline's ranges.
+    /// A path or count the page must give is missing or out of range.
     #[error("invalid settings: {0}")]
     Invalid(String),
+    /// Settings outside the pipeline's option ranges (its own message).
+    #[error("invalid settings: {0}")]
+    Options(#[source] colslam_slam::SlamError),
+}
+
+/// Why a [`RunController`] refused what the page asked; the page shows
+/// [`colslam_slam::error_chain`] of it, with [`ControlError::status`].
+#[derive(Debug, thiserror::Error)]
+pub enum ControlError {
+    /// The settings do not describe a run.
+    #[error(transparent)]
+    Settings(#[from] SettingsError),
+    /// The pipeline refused the run before it started (a bad or busy output).
+    #[error(transparent)]
+    Run(#[from] colslam_slam::SlamError),
+    /// The input cannot be read.
+    #[error(transparent)]
+    Input(#[from] colslam_io::SourceError),
+    /// A run is going on.
+    #[error("a run is already in progress; stop it first")]
+    Busy,
+    /// The input does not tell its number of frames before it is read.
+    #[error("{}: the number of frames is not known in advance", .0.display())]
+    UnknownFrameCount(PathBuf),
+    /// The run's thread could not be started.
+    #[error("cannot start the run thread")]
+    Thread(#[source] std::io::Error),
+}
+
+impl ControlError {
+    /// The HTTP status the server answers with.
+    pub fn status(&self) -> u16 {
+        match self {
+            Self::Busy => 409,
+            Self::Thread(_) => 500,
+            _ => 400,
+        }
+    }
 }
 
 impl RunSettings {
@@ -306,27 +344,29 @@ impl RunSettings {
     /// does before it starts anything (a pure function, for tests and fuzzing).
     pub fn from_json(body: &[u8]) -> Result<RunSettings, SettingsError> {
         let settings: RunSettings = serde_json::from_slice(body)?;
-        settings.validate().map_err(SettingsError::Invalid)?;
+        settings.validate()?;
         Ok(settings)
     }
 
     /// Checks the settings with the pipeline's own validation (the page
     /// checks the same before sending): input and output paths given, and
     /// every option in its range.
-    pub fn validate(&self) -> Result<(), String> {
+    pub fn validate(&self) -> Result<(), SettingsError> {
         self.to_config(&colslam_slam::RunOptions::default()).map(|_| ())
     }
 
     /// The run these settings select on top of `base` (the options the page
     /// does not set), validated by the pipeline's options.
-    pub fn to_config(&self, base: &colslam_slam::RunOptions) -> Result<colslam_slam::RunConfig, String> {
+    pub fn to_config(&self, base: &colslam_slam::RunOptions) -> Result<colslam_slam::RunConfig, SettingsError> {
         if self.input.as_os_str().is_empty() {
-            return Err("input path is missing".into());
+            return Err(SettingsError::Invalid("input path is missing".into()));
         }
         if self.output.as_os_str().is_empty() {
-            return Err("output path is missing".into());
+            return Err(SettingsError::Invalid("output path is missing".into()));
         }
-        let count = |name: &str, v: i64| usize::try_from(v).map_err(|_| format!("{name} must be at least 1, got {v}"));
+        let count = |name: &str, v: i64| {
+            usize::try_from(v).map_err(|_| SettingsError::Invalid(format!("{name} must be at least 1, got {v}")))
+        };
         let mut options = base.clone();
         options.slam.frontend.features = self.extractor;
         options.slam.frontend.matcher = self.matcher;
@@ -335,7 +375,7 @@ impl RunSettings {
         options.slam.init.init_frames = count("initialisation frames", self.init_frames)?;
         options.slam.keyframes.flow_threshold = self.flow_threshold;
         let config = colslam_slam::RunConfig { options, ..colslam_slam::RunConfig::new(&self.input, &self.output) };
-        config.options.validate().map_err(|e| e.to_string())?;
+        config.options.validate().map_err(SettingsError::Options)?;
         Ok(config)
     }
 
@@ -350,12 +390,12 @@ impl RunSettings {
 /// promptly (start the run on its own thread).
 pub trait RunController: Send + Sync {
     /// Starts a run with validated settings; an error is shown in the page.
-    fn start(&self, settings: RunSettings) -> Result<(), String>;
+    fn start(&self, settings: RunSettings) -> Result<(), ControlError>;
     /// Asks the running pipeline to stop.
     fn stop(&self);
     /// The number of frames `input` yields with this skip (the bound of the
     /// maximum-frames slider).
-    fn max_frames_for(&self, input: &std::path::Path, skip: usize) -> Result<usize, String>;
+    fn max_frames_for(&self, input: &std::path::Path, skip: usize) -> Result<usize, ControlError>;
     /// The current reconstruction of a run, for export while it runs. The
     /// default says none (export then uses the last model given to
     /// [`crate::Viewer::set_reconstruction`]).

@@ -13,8 +13,8 @@
 //! it fails: a CI run that could not drive a browser must not look green.
 
 use colslam_viewer::{
-    FrameUpdate, KeyframeUpdate, MapDelta, RunController, RunSettings, RunState, Summary, Viewer, ViewerCamera,
-    ViewerOptions, ViewerPoint, ViewerUpdate, demo_reconstruction,
+    ControlError, FrameUpdate, KeyframeUpdate, MapDelta, RunController, RunSettings, RunState, Summary, Viewer,
+    ViewerCamera, ViewerOptions, ViewerPoint, ViewerUpdate, demo_reconstruction,
 };
 use serde_json::json;
 use std::io::{BufRead, BufReader, Read, Write};
@@ -150,12 +150,12 @@ struct MockController {
 }
 
 impl RunController for MockController {
-    fn start(&self, settings: RunSettings) -> Result<(), String> {
-        self.started.lock().map_err(|e| e.to_string())?.push(settings);
+    fn start(&self, settings: RunSettings) -> Result<(), ControlError> {
+        self.started.lock().unwrap_or_else(|e| e.into_inner()).push(settings);
         Ok(())
     }
     fn stop(&self) {}
-    fn max_frames_for(&self, _input: &Path, skip: usize) -> Result<usize, String> {
+    fn max_frames_for(&self, _input: &Path, skip: usize) -> Result<usize, ControlError> {
         Ok(100usize.div_ceil(skip))
     }
 }

@@ -107,7 +107,7 @@ fn shell_word(p: &Path) -> String {
 pub fn print_outcome(config: &RunConfig, out: &RunOutput, quiet: bool) {
     let r = &out.report;
     if quiet {
-        outln!("{}; outputs in {}", r.headline(), config.output.display());
+        outln!("{}", r.outcome(&config.output));
         return;
     }
     outln!("{}\n", summary(r).trim_end());

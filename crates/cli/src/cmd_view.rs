@@ -122,13 +122,11 @@ pub fn run(args: &ViewArgs, threads: usize) -> Result<()> {
     };
     let gt = match (&args.gt, &model) {
         (Some(file), Some(rec)) => {
-            let traj = colslam_eval::Trajectory::read_tum(file)?;
-            let name = file.display().to_string();
             // The frames' times as the run read them (a list's stamps), else
             // those in the image names.
             let stamp_of = |image: &str| images.as_ref().and_then(|i| i.timestamp(image));
-            let layer = GroundTruthLayer::compute_timed(rec, &traj, &name, &stamp_of)
-                .with_context(|| format!("comparing with {name}"))?;
+            let layer = GroundTruthLayer::read(rec, file, &stamp_of)
+                .with_context(|| format!("comparing with {}", file.display()))?;
             Some(layer)
         }
         _ => None,

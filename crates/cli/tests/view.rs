@@ -144,28 +144,26 @@ fn read_events(url: &str, deadline: Instant) -> Vec<Value> {
     events
 }
 
+/// `colslam -q run INPUT -o OUT [extra] --view --port 0 --view-exit`: its
+/// exit status and every event the page was sent (the stream ends when the
+/// process exits after the run).
+fn run_followed(input: &Path, out: &Path, extra: &[&std::ffi::OsStr]) -> (std::process::ExitStatus, Vec<Value>) {
+    let mut args: Vec<&std::ffi::OsStr> =
+        vec!["-q".as_ref(), "run".as_ref(), input.as_os_str(), "-o".as_ref(), out.as_os_str()];
+    args.extend_from_slice(extra);
+    args.extend(["--view", "--port", "0", "--view-exit"].map(std::ffi::OsStr::new));
+    let (mut child, url, _stdout) = spawn_viewer(&args);
+    let events = read_events(&url, Instant::now() + RUN_TIMEOUT);
+    (child.0.wait().expect("wait"), events)
+}
+
 #[test]
 fn run_with_view_streams_keyframes_live() {
     let dir = tempfile::tempdir().expect("tempdir");
     let seq = synthetic(dir.path());
     let out = dir.path().join("out");
     let gt = seq.join("groundtruth.txt");
-    let (mut child, url, _stdout) = spawn_viewer(&[
-        "-q".as_ref(),
-        "run".as_ref(),
-        seq.as_os_str(),
-        "-o".as_ref(),
-        out.as_os_str(),
-        "--gt".as_ref(),
-        gt.as_os_str(),
-        "--view".as_ref(),
-        "--port".as_ref(),
-        "0".as_ref(),
-        "--view-exit".as_ref(),
-    ]);
-    // The stream ends when the process exits after the run (--view-exit).
-    let events = read_events(&url, Instant::now() + RUN_TIMEOUT);
-    let status = child.0.wait().expect("wait");
+    let (status, events) = run_followed(&seq, &out, &["--gt".as_ref(), gt.as_os_str()]);
     assert!(status.success(), "run --view failed");
     assert!(out.join("cameras.bin").is_file(), "outputs written");
 
@@ -293,19 +291,7 @@ fn run_with_view_shows_a_failed_run() {
     let empty = dir.path().join("no-images-here");
     std::fs::create_dir_all(&empty).expect("mkdir");
     let out = dir.path().join("out");
-    let (mut child, url, _stdout) = spawn_viewer(&[
-        "-q".as_ref(),
-        "run".as_ref(),
-        empty.as_os_str(),
-        "-o".as_ref(),
-        out.as_os_str(),
-        "--view".as_ref(),
-        "--port".as_ref(),
-        "0".as_ref(),
-        "--view-exit".as_ref(),
-    ]);
-    let events = read_events(&url, Instant::now() + RUN_TIMEOUT);
-    let status = child.0.wait().expect("wait");
+    let (status, events) = run_followed(&empty, &out, &[]);
     assert!(!status.success(), "a failed run fails the command");
     let run = events.iter().rev().find_map(|e| e.get("run")).expect("a run state");
     assert_eq!(run["state"], "failed", "{run}");

@@ -243,7 +243,8 @@ impl Emitter {
         flow_score: f64,
         is_keyframe: bool,
     ) {
-        let Some(flow) = flow.filter(|_| self.is_active()) else { return };
+        // `flow` is `None` without a consumer (see `flow`).
+        let Some(flow) = flow else { return };
         self.sink.send(SlamEvent::FrameProcessed {
             index: data.index(),
             timestamp: data.id.timestamp,

@@ -118,6 +118,12 @@ impl RunReport {
             if maps == 1 { "" } else { "s" }
         )
     }
+
+    /// The headline and where the run's outputs are: the line that ends a
+    /// run for scripts (`-q`) and in the viewer's status.
+    pub fn outcome(&self, output: &std::path::Path) -> String {
+        format!("{}; outputs in {}", self.headline(), output.display())
+    }
 }
 
 /// A camera in the report.

@@ -35,6 +35,17 @@ impl GroundTruthLayer {
         Self::compute_timed(rec, gt, name, &|_| None)
     }
 
+    /// [`Self::compute_timed`] against the TUM trajectory in `file` (the
+    /// layer named by the file), as `view --gt` and `run --view --gt` show it.
+    pub fn read(
+        rec: &Reconstruction,
+        file: &std::path::Path,
+        stamp_of: &dyn Fn(&str) -> Option<f64>,
+    ) -> Result<GroundTruthLayer, EvalError> {
+        let gt = Trajectory::read_tum(file)?;
+        Self::compute_timed(rec, &gt, &file.display().to_string(), stamp_of)
+    }
+
     /// [`Self::compute`] with the images' timestamps that `stamp_of` knows
     /// by image name (a finished run knows every frame's time, which an
     /// image name need not hold).

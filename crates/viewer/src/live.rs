@@ -556,14 +556,10 @@ pub fn run_live(
         // `--gt`: the comparison layer on the final poses, as `view --gt`
         // shows it for a loaded model; the run's report holds the same ATE.
         if let (Some(gt), Ok(o)) = (&config.gt, &result) {
-            let name = gt.display().to_string();
             let stamps: HashMap<&str, f64> = o.result.frames.iter().map(|f| (f.name.as_str(), f.timestamp)).collect();
-            let stamp_of = |image: &str| stamps.get(image).copied();
-            match colslam_eval::Trajectory::read_tum(gt)
-                .and_then(|traj| crate::GroundTruthLayer::compute_timed(rec, &traj, &name, &stamp_of))
-            {
+            match crate::GroundTruthLayer::read(rec, gt, &|image| stamps.get(image).copied()) {
                 Ok(layer) => handle.set_ground_truth(Some(layer)),
-                Err(e) => tracing::warn!("no ground-truth layer for {name}: {}", error_chain(&e)),
+                Err(e) => tracing::warn!("no ground-truth layer for {}: {}", gt.display(), error_chain(&e)),
             }
         }
     }
@@ -580,7 +576,7 @@ pub fn run_live(
                 let (frames, total_frames) = (r.frames, Some(r.frames));
                 handle.apply(ViewerUpdate::Summary(Summary { fps, frames, total_frames, ..Summary::of(rec) }));
             }
-            let line = format!("{}; outputs in {}", r.headline(), config.output.display());
+            let line = r.outcome(&config.output);
             handle.apply(ViewerUpdate::Status(line.clone()));
             handle.apply(ViewerUpdate::RunState(match r.stopped_after {
                 Some(_) => RunState::Stopped(line),

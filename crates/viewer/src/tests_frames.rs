@@ -6,7 +6,7 @@ use super::tests::{get, get_json, post, raw, start};
 use super::*;
 use colslam_scene::{ImageId, Reconstruction};
 use serde_json::Value;
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 /// A demo model with one observation moved 10 px off its projection (an
 /// outlier) and one keypoint without a 3D point added to image 2.
@@ -134,15 +134,22 @@ fn image_requests_outside_the_images_folder_are_refused() {
     assert_eq!(post(&v, "/api/image", r#"{"id": 2}"#).0, 403);
 }
 
+/// A run folder `dir/out` whose `report.json` names its input `dir/seq`,
+/// which holds the pictures of a small demo model.
+fn run_folder(dir: &Path) -> (Reconstruction, PathBuf, PathBuf) {
+    let input = dir.join("seq");
+    let rec = demo_reconstruction(3, 30, 1).expect("demo");
+    write_pictures(&rec, &input);
+    let out = dir.join("out");
+    std::fs::create_dir_all(&out).expect("mkdir");
+    std::fs::write(out.join("report.json"), serde_json::json!({ "input": input }).to_string()).expect("report");
+    (rec, input, out)
+}
+
 #[test]
 fn a_run_report_names_the_input_and_its_frames() {
     let dir = tempfile::tempdir().expect("tempdir");
-    let input = dir.path().join("seq");
-    let rec = demo_reconstruction(3, 30, 1).expect("demo");
-    write_pictures(&rec, &input);
-    let out = dir.path().join("out");
-    std::fs::create_dir_all(&out).expect("mkdir");
-    std::fs::write(out.join("report.json"), serde_json::json!({ "input": input }).to_string()).expect("report");
+    let (rec, input, out) = run_folder(dir.path());
     match ImageSource::discover(&out, &rec) {
         ImageSource::Sequence { files, .. } => {
             assert_eq!(files.get("frame_000001.png"), Some(&input.join("frame_000001.png")));
@@ -161,18 +168,13 @@ fn a_run_report_names_the_input_and_its_frames() {
 #[test]
 fn a_run_report_gives_the_frames_times_to_the_ground_truth_layer() {
     let dir = tempfile::tempdir().expect("tempdir");
-    let input = dir.path().join("seq");
-    let rec = demo_reconstruction(3, 30, 1).expect("demo");
-    write_pictures(&rec, &input);
+    let (rec, input, out) = run_folder(dir.path());
     // A TUM list: the frames' times are in rgb.txt, not in their names.
     let mut names: Vec<String> =
         rec.registered_image_ids().iter().filter_map(|id| rec.image(*id)).map(|i| i.name.clone()).collect();
     names.sort();
     let list: String = names.iter().enumerate().map(|(k, n)| format!("{} {n}\n", 100.5 + 0.1 * k as f64)).collect();
     std::fs::write(input.join("rgb.txt"), list).expect("rgb.txt");
-    let out = dir.path().join("out");
-    std::fs::create_dir_all(&out).expect("mkdir");
-    std::fs::write(out.join("report.json"), serde_json::json!({ "input": input }).to_string()).expect("report");
     let source = ImageSource::discover(&out, &rec);
     assert_eq!(source.timestamp(&names[1]), Some(100.6), "{source:?}");
     // A ground truth in the list's times: the cameras' own poses.

@@ -148,6 +148,7 @@ fn tum_run_exports_undistorted_and_opencv() {
     let (w, h) = (g["width"].as_u64().expect("w"), g["height"].as_u64().expect("h"));
     assert!(w < 640 && h < 480 && w > 500 && h > 380, "{g}");
     assert!(f(&g["opencv_valid_fraction"]) > 0.99, "{g}");
+    assert!(g["opencv_undistort_mean_abs"]["n"].as_u64().unwrap_or(0) >= 10, "{g}");
     assert!(f(&g["opencv_undistort_mean_abs"]["max"]) < 1.0, "undistortion differs from OpenCV's: {g}");
     // FULL_OPENCV without rational terms is OPENCV with k3 for nerfstudio,
     // and the images keep their distortion.

@@ -144,6 +144,8 @@ def check_3dgs(out, run):
             src = cv2.imread(sources[n], cv2.IMREAD_UNCHANGED)
             ref = cv2.remap(src, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
             got = cv2.imread(os.path.join(out, "images", n), cv2.IMREAD_UNCHANGED)
+            if got is None or got.shape != ref.shape:
+                continue  # reported in bad_size
             d = np.abs(ref.astype(float) - got.astype(float))
             diffs.append(float(d[valid].mean()))
         res["opencv_undistort_mean_abs"] = stats(diffs)

@@ -269,14 +269,29 @@ pub fn export_scene_with(
         skipped += usize::from(pose.is_none());
         pose
     };
-    let mut write = |frame: InputFrame<'_>, pose: Posed| -> Result<(), ExportError> {
-        let name = camera.write_image(frame, &images_dir, &input)?;
-        tracing::debug!("exported {name} ({}/{total})", written.len() + 1);
-        on_frame(&ExportProgress { done: written.len() + 1, total, name: &name });
-        written.push(Written { name, pose });
+    // Frames are resampled and encoded in parallel, a bounded batch at a
+    // time (memory stays a few frames), and recorded in input order.
+    let batch_len = (2 * rayon::current_num_threads()).max(2);
+    let mut pending: Vec<(InputFrame, Posed)> = Vec::with_capacity(batch_len);
+    let mut flush = |pending: &mut Vec<(InputFrame, Posed)>| -> Result<(), ExportError> {
+        use rayon::prelude::*;
+        let done: Vec<Result<(String, Posed), ExportError>> = std::mem::take(pending)
+            .into_par_iter()
+            .map(|(frame, pose)| camera.write_image(frame, &images_dir, &input).map(|name| (name, pose)))
+            .collect();
+        for result in done {
+            let (name, pose) = result?;
+            tracing::debug!("exported {name} ({}/{total})", written.len() + 1);
+            on_frame(&ExportProgress { done: written.len() + 1, total, name: &name });
+            written.push(Written { name, pose });
+        }
         Ok(())
     };
-    for_each_frame(&input, &mut select, &mut write)?;
+    for_each_frame(&input, &mut select, &mut |frame, pose| {
+        pending.push((frame, pose));
+        if pending.len() >= batch_len { flush(&mut pending) } else { Ok(()) }
+    })?;
+    flush(&mut pending)?;
     matcher.check_complete(&input)?;
     let summary = match req.format {
         SceneFormat::Gaussian3d => write_gaussian(&run, &camera, &written, out.path())?,
@@ -453,11 +468,11 @@ impl<'a> PoseMatcher<'a> {
 }
 
 /// A selected frame of the input, before it is read.
-enum InputFrame<'a> {
-    /// A file of an image sequence (read only if selected).
-    File { name: &'a str, path: &'a Path },
+enum InputFrame {
+    /// A file of an image sequence (read when written).
+    File { name: String, path: PathBuf },
     /// A decoded video frame.
-    Decoded { name: &'a str, image: Image },
+    Decoded { name: String, image: Image },
 }
 
 /// Walks the input once, in order: `select(name, timestamp)` decides for
@@ -466,7 +481,7 @@ enum InputFrame<'a> {
 fn for_each_frame(
     input: &Path,
     select: &mut dyn FnMut(&str, f64) -> Option<Posed>,
-    write: &mut dyn FnMut(InputFrame<'_>, Posed) -> Result<(), ExportError>,
+    write: &mut dyn FnMut(InputFrame, Posed) -> Result<(), ExportError>,
 ) -> Result<(), ExportError> {
     let open_err = |source| ExportError::Input { path: input.to_path_buf(), source };
     match detect_layout(input).map_err(open_err)? {
@@ -483,7 +498,7 @@ fn for_each_frame(
                     source: Box::new(e),
                 })?;
                 if let Some(pose) = select(&frame.name, frame.timestamp) {
-                    write(InputFrame::Decoded { name: &frame.name, image: frame.image }, pose)?;
+                    write(InputFrame::Decoded { name: frame.name, image: frame.image }, pose)?;
                 }
             }
         }
@@ -491,7 +506,7 @@ fn for_each_frame(
             let seq = ImageSequence::open_layout(input, layout, &SourceOptions::default()).map_err(open_err)?;
             for listed in seq.listed() {
                 if let Some(pose) = select(&listed.name, listed.timestamp) {
-                    write(InputFrame::File { name: &listed.name, path: listed.path }, pose)?;
+                    write(InputFrame::File { name: listed.name, path: listed.path.to_path_buf() }, pose)?;
                 }
             }
         }
@@ -541,7 +556,7 @@ impl CameraPlan {
     }
 
     /// Writes one frame into `dir`; returns its file name.
-    fn write_image(&self, frame: InputFrame<'_>, dir: &Path, input: &Path) -> Result<String, ExportError> {
+    fn write_image(&self, frame: InputFrame, dir: &Path, input: &Path) -> Result<String, ExportError> {
         let frame_err = |name: &str, source: Box<dyn std::error::Error + Send + Sync>| ExportError::Frame {
             name: name.to_string(),
             input: input.to_path_buf(),
@@ -549,26 +564,29 @@ impl CameraPlan {
         };
         let (name, image) = match frame {
             InputFrame::File { name, path } => {
-                let (w, h) = colslam_io::image_size(path).map_err(|e| frame_err(name, Box::new(e)))?;
-                self.check_size(name, input, w, h)?;
+                let (w, h) = colslam_io::image_size(&path).map_err(|e| frame_err(&name, Box::new(e)))?;
+                self.check_size(&name, input, w, h)?;
+                let bytes = std::fs::read(&path).map_err(|e| frame_err(&name, Box::new(e)))?;
+                // Decoded even when copied, so a damaged file is refused here
+                // rather than by the trainer.
+                let image = Image::decode(&bytes, &path).map_err(|e| frame_err(&name, Box::new(e)))?;
                 if self.undistort.is_none() {
                     // The source file itself: no re-encoding, its name and format kept.
-                    let to = dir.join(name);
-                    std::fs::copy(path, &to)
+                    let to = dir.join(&name);
+                    std::fs::write(&to, &bytes)
                         .map_err(|e| ExportError::Write { path: to.clone(), source: Box::new(e) })?;
-                    return Ok(name.to_string());
+                    return Ok(name);
                 }
-                let image = Image::read(path).map_err(|e| frame_err(name, Box::new(e)))?;
                 (name, image)
             }
             InputFrame::Decoded { name, image } => (name, image),
         };
-        self.check_size(name, input, image.width(), image.height())?;
+        self.check_size(&name, input, image.width(), image.height())?;
         let image = match &self.undistort {
             Some(map) => map.remap(&image)?,
             None => image,
         };
-        let stem = Path::new(name).file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
+        let stem = Path::new(&name).file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
         let file = format!("{stem}.png");
         let path = dir.join(&file);
         image.write_png(&path).map_err(|e| ExportError::Write { path, source: Box::new(e) })?;

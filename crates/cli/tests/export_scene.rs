@@ -169,6 +169,38 @@ fn tum_run_exports_undistorted_and_opencv() {
     );
 }
 
+#[test]
+fn video_frames_are_extracted_as_png() {
+    let Some(py) = colslam_testutil::peer_python(&["pycolmap", "cv2", "numpy"]) else { return };
+    let dir = tempfile::tempdir().expect("tempdir");
+    let (seq, run) = (dir.path().join("seq"), dir.path().join("run"));
+    ok(&["-q", "demo", "--generate-only", "-o", s(&seq), "--frames", "40", "--width", "320", "--height", "240"]);
+    // A lossless video of the sequence, with its camera file beside it.
+    let video = dir.path().join("video").join("seq.mkv");
+    std::fs::create_dir_all(video.parent().expect("parent")).expect("mkdir");
+    std::fs::copy(seq.join("camera.yaml"), dir.path().join("video").join("camera.yaml")).expect("camera");
+    let pattern = seq.join("rgb").join("%06d.png");
+    let ff = Command::new("ffmpeg")
+        .args(["-v", "error", "-y", "-nostdin", "-framerate", "30", "-i", s(&pattern), "-c:v", "ffv1", s(&video)])
+        .output()
+        .expect("run ffmpeg");
+    assert!(ff.status.success(), "{}", String::from_utf8_lossy(&ff.stderr));
+    ok(&["-q", "run", s(&video), "-o", s(&run)]);
+    let (g, _) = check_both(&py, &run, dir.path(), "all");
+    assert!(g["images"].as_u64().unwrap_or(0) >= 30, "{g}");
+    let names: Vec<String> = std::fs::read_dir(dir.path().join("gs-all").join("images"))
+        .expect("ls")
+        .flatten()
+        .map(|e| e.file_name().to_string_lossy().into_owned())
+        .collect();
+    assert!(names.iter().all(|n| n.starts_with("frame_") && n.ends_with(".png") && n.len() == 16), "{names:?}");
+    // Lossless: an extracted frame is the source frame.
+    let a =
+        colslam_image::Image::read(&dir.path().join("gs-all").join("images").join("frame_000020.png")).expect("png");
+    let b = colslam_image::Image::read(&seq.join("rgb").join("000020.png")).expect("source");
+    assert!(a.to_rgb().data() == b.to_rgb().data(), "frame_000020.png differs from the source frame");
+}
+
 /// A run folder whose report names `input`.
 fn run_with_input(from: &Path, to: &Path, input: &Path) -> PathBuf {
     std::fs::create_dir_all(to).expect("mkdir");

@@ -68,7 +68,7 @@ enum Command {
     Bench(colslam_bench::BenchArgs),
     /// Browser viewer for a reconstruction or a live run.
     View(cmd_view::ViewArgs),
-    /// Convert or export a COLMAP model (binary, text, PLY, TUM trajectory).
+    /// Convert or export a COLMAP model (binary, text, PLY, TUM trajectory) or a run (nerfstudio, 3D Gaussian splatting).
     Export(cmd_export::ExportArgs),
     /// Describe a COLMAP model folder or an input sequence/video.
     Info(cmd_info::InfoArgs),
@@ -99,7 +99,7 @@ fn dispatch(cli: Cli) -> Result<()> {
             cmd_demo::run(&a, g.quiet)
         }
         Command::Eval(a) => cmd_eval::run(&a),
-        Command::Export(a) => cmd_export::run(&a),
+        Command::Export(a) => cmd_export::run(&a, g.quiet),
         Command::Info(a) => cmd_info::run(&a),
         Command::Run(mut a) => {
             a.config.options.threads = g.threads;

@@ -36,7 +36,7 @@ pub use natural::natural_cmp;
 pub use options::{
     DEFAULT_FFMPEG, DEFAULT_FFPROBE, DEFAULT_SKIP, DEFAULT_START, SourceOptions, VideoColor, VideoOptions,
 };
-pub use sequence::ImageSequence;
+pub use sequence::{ImageSequence, ListedFrame};
 pub use video::{DEFAULT_VIDEO_FPS, VideoSource};
 
 /// File names searched, in this order, for a camera file beside the data.

@@ -156,10 +156,11 @@ impl ImageSequence {
         self.entries.iter().map(|e| e.path.as_path())
     }
 
-    /// Paths of the selected images with the timestamps their frames get,
-    /// in output order (no decoding).
-    pub fn timed_paths(&self) -> impl Iterator<Item = (&Path, f64)> {
-        self.entries.iter().map(|e| (e.path.as_path(), e.timestamp))
+    /// The selected frames as the iterator will name and time them, in
+    /// output order, without decoding: what a consumer needs to pair a run's
+    /// outputs (image names, trajectory timestamps) with the input's files.
+    pub fn listed(&self) -> impl Iterator<Item = ListedFrame<'_>> {
+        self.entries.iter().map(|e| ListedFrame { name: frame_name(&e.path), path: &e.path, timestamp: e.timestamp })
     }
 
     /// Adds the list-file context to an image error from the header reader.
@@ -176,6 +177,22 @@ impl ImageSequence {
             _ => String::new(),
         }
     }
+}
+
+/// One selected frame of an [`ImageSequence`], before decoding.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ListedFrame<'a> {
+    /// The frame's name ([`crate::Frame::name`]: the file name).
+    pub name: String,
+    /// The image file.
+    pub path: &'a Path,
+    /// The timestamp the frame gets ([`crate::Frame::timestamp`]).
+    pub timestamp: f64,
+}
+
+/// The name a frame of an image file gets: its file name.
+fn frame_name(path: &Path) -> String {
+    path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default()
 }
 
 fn size_mismatch(path: &Path, (width, height): (usize, usize), expected: (usize, usize)) -> SourceError {
@@ -224,7 +241,7 @@ impl Iterator for ImageSequence {
         if (w, h) != reference {
             return Some(Err(size_mismatch(&e.path, (w, h), reference)));
         }
-        let name = e.path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
+        let name = frame_name(&e.path);
         Some(Ok(Frame { index, source_index: e.source_index, timestamp: e.timestamp, name, image }))
     }
 

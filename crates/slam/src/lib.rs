@@ -27,6 +27,7 @@
 
 pub mod error;
 pub mod events;
+pub mod export;
 pub mod frame;
 pub mod frontend;
 pub mod keyframe;
@@ -39,6 +40,10 @@ pub mod timing;
 
 pub use error::{SlamError, error_chain};
 pub use events::{EventPoint, EventSink, SlamEvent};
+pub use export::{
+    ExportError, ExportProgress, ExportSummary, FrameSelection, SceneExport, SceneFormat, export_scene,
+    export_scene_with,
+};
 pub use frame::{FrameData, FrameId, FramePose, FrameRecord};
 pub use mapper::rolling_shutter;
 pub use options::{FeatureKind, MatcherKind, SlamOptions};

@@ -186,11 +186,9 @@ fn from_report(report: &Path) -> Option<ImageSource> {
         layout => {
             let seq = ImageSequence::open_layout(&input, layout, &SourceOptions::default()).ok()?;
             let (mut files, mut stamps) = (HashMap::new(), HashMap::new());
-            for (path, t) in seq.timed_paths() {
-                let Some(name) = path.file_name() else { continue };
-                let name = name.to_string_lossy().into_owned();
-                stamps.insert(name.clone(), t);
-                files.insert(name, path.to_path_buf());
+            for frame in seq.listed() {
+                stamps.insert(frame.name.clone(), frame.timestamp);
+                files.insert(frame.name, frame.path.to_path_buf());
             }
             Some(ImageSource::Sequence { input, files, stamps })
         }

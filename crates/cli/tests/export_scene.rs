@@ -103,8 +103,11 @@ fn synthetic_run_exports_for_splatting_and_nerfstudio() {
     ok(&["-q", "run", s(&seq), "-o", s(&run)]);
     let (g, n) = check_both(&py, &run, dir.path(), "all");
     assert_eq!(n["camera_model"], "OPENCV");
-    // A synthetic run: the SLAM residual itself is sub-pixel.
+    // A synthetic run: the SLAM residual itself is sub-pixel, and the typical
+    // observation lies within the 0.5 px of its exported projection
+    // (the mean carries the map's own residual, up to its 4 px filter).
     assert!(f(&n["to_keypoints"]["mean"]) < 1.0, "{n}");
+    assert!(f(&n["to_keypoints"]["median"]) < 0.5, "{n}");
     assert!(f(&g["reprojection"]["mean"]) < 1.0, "{g}");
     check_both(&py, &run, dir.path(), "keyframes");
 

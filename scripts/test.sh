@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # The project's test command (README, .ci/run): prepares the Python peer venv
 # used by cross-check tests (pycolmap, evo, OpenCV), then runs every test of
-# the workspace. Environment:
+# the workspace and the Python package's (scripts/test-python.sh). Environment:
 #   COLSLAM_VENV  where the peer venv lives (default: .venv in the checkout)
 #   COLSLAM_DATA  the datasets folder (default: ../shared/datasets)
 #   CI=true       data and peer tests must run instead of skipping
@@ -18,3 +18,13 @@ if ! "$root/scripts/setup-peers.sh" "$venv"; then
 fi
 export COLSLAM_PYTHON="$venv/bin/python"
 cargo test --workspace --locked "$@"
+# The Python package (crates/python): built into the peer venv (dev profile,
+# sharing the build above) and tested with pytest.
+if [ -x "$venv/bin/python" ]; then
+  "$root/scripts/test-python.sh" "$venv"
+elif [ "${CI:-}" = "true" ]; then
+  echo "error: no peer venv in $venv for the Python package's tests" >&2
+  exit 1
+else
+  echo "warning: peer venv unavailable; the Python package's tests are skipped" >&2
+fi

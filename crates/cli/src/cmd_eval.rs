@@ -6,19 +6,6 @@ use anyhow::{Context, Result};
 use colslam_eval::{Alignment, EvalOptions, evaluate_files, plot::plot_evaluation};
 use std::path::PathBuf;
 
-/// Alignment choices on the command line.
-#[derive(Debug, Clone, Copy, clap::ValueEnum)]
-pub enum AlignArg {
-    /// Similarity (rotation, translation, scale): `evo -as`.
-    Sim3,
-    /// Rigid (rotation, translation): `evo -a`.
-    Se3,
-    /// Scale only: `evo -s`.
-    Scale,
-    /// No alignment.
-    None,
-}
-
 /// Arguments of `eval`.
 #[derive(Debug, clap::Args)]
 pub struct EvalArgs {
@@ -38,16 +25,16 @@ pub struct EvalArgs {
     #[arg(long, conflicts_with = "plot")]
     pub no_plot: bool,
     /// Maximum timestamp difference for association, seconds.
-    #[arg(long, value_name = "SECONDS", default_value_t = 0.01)]
+    #[arg(long, value_name = "SECONDS", default_value_t = EvalOptions::default().max_diff)]
     pub max_diff: f64,
     /// Time offset added to the estimate's timestamps, seconds.
-    #[arg(long, value_name = "SECONDS", default_value_t = 0.0, allow_hyphen_values = true)]
+    #[arg(long, value_name = "SECONDS", default_value_t = EvalOptions::default().offset, allow_hyphen_values = true)]
     pub offset: f64,
     /// Alignment of the estimate onto the ground truth.
     #[arg(long, value_name = "KIND", value_enum, default_value = "sim3")]
-    pub align: AlignArg,
+    pub align: Alignment,
     /// Frame distance of the relative pose error (RPE).
-    #[arg(long, value_name = "FRAMES", default_value_t = 1)]
+    #[arg(long, value_name = "FRAMES", default_value_t = EvalOptions::default().rpe_delta)]
     pub delta: usize,
 }
 
@@ -56,12 +43,7 @@ pub fn run(args: &EvalArgs) -> Result<()> {
     let opts = EvalOptions {
         max_diff: args.max_diff,
         offset: args.offset,
-        align: match args.align {
-            AlignArg::Sim3 => Alignment::Sim3,
-            AlignArg::Se3 => Alignment::Se3,
-            AlignArg::Scale => Alignment::Scale,
-            AlignArg::None => Alignment::None,
-        },
+        align: args.align,
         rpe_delta: args.delta,
         ..EvalOptions::default()
     };

@@ -18,6 +18,7 @@ pub const MIN_ALIGN_POINTS: usize = 3;
 
 /// How the estimate is aligned onto the reference.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize)]
+#[cfg_attr(feature = "cli", derive(clap::ValueEnum))]
 #[serde(rename_all = "lowercase")]
 pub enum Alignment {
     /// No alignment.

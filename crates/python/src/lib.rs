@@ -165,23 +165,21 @@ fn evaluate<'py>(
     align: Option<String>,
     delta: Option<usize>,
 ) -> PyResult<Bound<'py, PyAny>> {
+    use clap::ValueEnum;
     use colslam_eval::{Alignment, EvalError, EvalOptions};
     let mut opts = EvalOptions::default();
     opts.max_diff = max_diff.unwrap_or(opts.max_diff);
     opts.offset = offset.unwrap_or(opts.offset);
     opts.rpe_delta = delta.unwrap_or(opts.rpe_delta);
     if let Some(a) = align {
-        // The value names of `colslam eval --align`.
-        opts.align = match a.as_str() {
-            "sim3" => Alignment::Sim3,
-            "se3" => Alignment::Se3,
-            "scale" => Alignment::Scale,
-            "none" => Alignment::None,
-            _ => {
-                let m = format!("invalid value '{a}' for 'align': one of 'sim3', 'se3', 'scale', 'none'");
-                return Err(raise(py, Kind::Options, m));
-            }
-        };
+        // The value names of `colslam eval --align`, from the same declaration.
+        opts.align = <Alignment as clap::ValueEnum>::from_str(&a, false).map_err(|_| {
+            let names: Vec<String> = Alignment::value_variants()
+                .iter()
+                .filter_map(|v| v.to_possible_value().map(|p| format!("'{}'", p.get_name())))
+                .collect();
+            raise(py, Kind::Options, format!("invalid value '{a}' for 'align': one of {}", names.join(", ")))
+        })?;
     }
     let report = py.detach(|| colslam_eval::evaluate_files(&gt, &est, &opts)).map_err(|e| {
         let kind = if matches!(e, EvalError::InvalidOptions(_)) { Kind::Options } else { Kind::Input };

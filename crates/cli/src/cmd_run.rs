@@ -74,10 +74,14 @@ const OUTPUT_FILES: [(&str, &str); 6] = [
 /// export it (`gt`: the ground truth, when the run was given one).
 pub fn next_steps(out: &Path, gt: Option<&Path>) -> String {
     let o = shell_word(out);
-    // The run already wrote the point cloud and the trajectory; the export
-    // a reader most likely wants is the model as COLMAP text, beside it.
-    let text_name = out.file_name().map_or_else(|| "model".into(), |n| n.to_string_lossy().into_owned()) + "-text";
-    let text = shell_word(&out.with_file_name(text_name));
+    // The run already wrote the point cloud and the trajectory; the exports
+    // a reader most likely wants are the model as COLMAP text and the
+    // layout splatting trainers read, beside it.
+    let sibling = |suffix: &str| {
+        let name = out.file_name().map_or_else(|| "model".into(), |n| n.to_string_lossy().into_owned());
+        shell_word(&out.with_file_name(name + suffix))
+    };
+    let text = sibling("-text");
     let gt = gt.map_or_else(|| "GT.txt".to_string(), shell_word);
     let est = shell_word(&out.join("trajectory.tum"));
     let mut s = format!("Output folder: {}\n", out.display());
@@ -88,8 +92,10 @@ pub fn next_steps(out: &Path, gt: Option<&Path>) -> String {
     s.push_str(&format!("  view      colslam view {o}\n"));
     s.push_str(&format!("  evaluate  colslam eval --gt {gt} --est {est}\n"));
     s.push_str(&format!(
-        "  export    colslam export {o} -o {text} -f txt   (-f ply: point cloud, -f tum: keyframe poses)"
+        "  export    colslam export {o} -o {text} -f txt   (-f ply: point cloud, -f tum: keyframe poses)\n"
     ));
+    let splat = sibling("-3dgs");
+    s.push_str(&format!("  splat     colslam export {o} -o {splat} -f 3dgs  (-f nerfstudio: transforms.json)"));
     s
 }
 

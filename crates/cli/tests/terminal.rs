@@ -68,7 +68,8 @@ fn a_piped_run_prints_no_escape_codes_and_ends_with_next_steps() {
     let view = format!("colslam view {out_s}\n");
     let eval = format!("colslam eval --gt {gt_s} --est {out_s}/trajectory.tum\n");
     let export = format!("colslam export {out_s} -o {out_s}-text -f txt");
-    for cmd in [&view, &eval, &export] {
+    let splat = format!("colslam export {out_s} -o {out_s}-3dgs -f 3dgs");
+    for cmd in [&view, &eval, &export, &splat] {
         assert!(stdout.contains(cmd.as_str()), "{cmd:?} in:\n{stdout}");
     }
     // The printed commands work as printed.
@@ -76,6 +77,8 @@ fn a_piped_run_prints_no_escape_codes_and_ends_with_next_steps() {
     assert!(evaluated.contains("ATE"), "{evaluated}");
     ok(&["-q", "export", out_s, "-o", &format!("{out_s}-text"), "-f", "txt"]);
     assert!(dir.path().join("out-text/images.txt").is_file(), "the export wrote the text model");
+    ok(&["-q", "export", out_s, "-o", &format!("{out_s}-3dgs"), "-f", "3dgs"]);
+    assert!(dir.path().join("out-3dgs/sparse/0/images.bin").is_file(), "the splatting export wrote its model");
 
     // -q: nothing on stderr, one line on stdout (what a script needs).
     let again = dir.path().join("again");

@@ -3,17 +3,9 @@
 //! and clear errors on bad input.
 
 use std::path::Path;
-use std::process::Command;
 
-fn colslam(args: &[&str]) -> std::process::Output {
-    Command::new(env!("CARGO_BIN_EXE_colslam")).args(args).output().expect("run colslam")
-}
-
-fn ok(args: &[&str]) -> String {
-    let out = colslam(args);
-    assert!(out.status.success(), "colslam {args:?} failed:\n{}", String::from_utf8_lossy(&out.stderr));
-    String::from_utf8_lossy(&out.stdout).into_owned()
-}
+mod common;
+use common::{colslam, ok};
 
 #[test]
 fn demo_eval_info_export() {

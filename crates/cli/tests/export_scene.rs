@@ -12,23 +12,8 @@ use serde_json::Value;
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
-fn colslam(args: &[&str]) -> std::process::Output {
-    Command::new(env!("CARGO_BIN_EXE_colslam")).args(args).output().expect("run colslam")
-}
-
-fn ok(args: &[&str]) -> String {
-    let out = colslam(args);
-    assert!(out.status.success(), "colslam {args:?} failed:\n{}", String::from_utf8_lossy(&out.stderr));
-    String::from_utf8_lossy(&out.stdout).into_owned()
-}
-
-fn fails(args: &[&str]) -> String {
-    let out = colslam(args);
-    let err = String::from_utf8_lossy(&out.stderr).into_owned();
-    assert!(!out.status.success(), "colslam {args:?} should fail");
-    assert!(!err.contains("panicked"), "{err}");
-    err
-}
+mod common;
+use common::{fails, ok};
 
 fn s(p: &Path) -> &str {
     p.to_str().expect("utf-8 path")

@@ -6,15 +6,8 @@
 use std::path::Path;
 use std::process::{Command, Stdio};
 
-fn colslam(args: &[&str]) -> std::process::Output {
-    Command::new(env!("CARGO_BIN_EXE_colslam")).args(args).output().expect("run colslam")
-}
-
-fn stderr_of(args: &[&str]) -> String {
-    let out = colslam(args);
-    assert!(!out.status.success(), "colslam {args:?} should fail");
-    String::from_utf8_lossy(&out.stderr).into_owned()
-}
+mod common;
+use common::fails;
 
 fn png(path: &Path, width: usize, height: usize) {
     std::fs::create_dir_all(path.parent().expect("parent")).expect("mkdir");
@@ -53,19 +46,19 @@ fn os_errors_are_printed_once() {
     std::fs::write(&file, "x").expect("write");
     // A path under a regular file: ENOTDIR.
     let under = file.join("seq");
-    let err = stderr_of(&["info", under.to_str().expect("utf-8")]);
+    let err = fails(&["info", under.to_str().expect("utf-8")]);
     assert!(err.contains("plain/seq"), "{err}");
     assert_eq!(count(&err, "os error 20"), 1, "{err}");
     // A missing ground truth: ENOENT, from the eval crate.
     let gt = dir.path().join("missing-gt.txt");
-    let err = stderr_of(&["eval", "--gt", gt.to_str().expect("utf-8"), "--est", gt.to_str().expect("utf-8")]);
+    let err = fails(&["eval", "--gt", gt.to_str().expect("utf-8"), "--est", gt.to_str().expect("utf-8")]);
     assert!(err.contains("missing-gt.txt"), "{err}");
     assert_eq!(count(&err, "os error 2)"), 1, "{err}");
     // An output folder under a regular file.
     let seq = dir.path().join("seq");
     png(&seq.join("000.png"), 32, 24);
     let out = file.join("out");
-    let err = stderr_of(&["run", seq.to_str().expect("utf-8"), "-o", out.to_str().expect("utf-8")]);
+    let err = fails(&["run", seq.to_str().expect("utf-8"), "-o", out.to_str().expect("utf-8")]);
     assert!(count(&err, "os error") <= 1, "{err}");
     assert!(!err.contains("panicked"), "{err}");
 }
@@ -82,7 +75,7 @@ fn a_run_that_reads_no_frame_fails() {
         std::fs::write(&p, &bytes[..40]).expect("truncate");
     }
     let out = dir.path().join("out");
-    let err = stderr_of(&["run", seq.to_str().expect("utf-8"), "-o", out.to_str().expect("utf-8")]);
+    let err = fails(&["run", seq.to_str().expect("utf-8"), "-o", out.to_str().expect("utf-8")]);
     assert!(err.contains("broken") && err.contains("no frame could be read") && err.contains("3 skipped"), "{err}");
     assert!(err.contains("000.png"), "the first failure is named: {err}");
 }
@@ -94,6 +87,6 @@ fn paths_that_exist_are_not_called_missing() {
     png(&seq.join("rgb/1.png"), 16, 12);
     std::fs::create_dir_all(seq.join("rgb/2.png")).expect("mkdir");
     std::fs::write(seq.join("rgb.txt"), "1.0 rgb/1.png\n2.0 rgb/2.png\n").expect("write");
-    let err = stderr_of(&["info", seq.to_str().expect("utf-8")]);
+    let err = fails(&["info", seq.to_str().expect("utf-8")]);
     assert!(err.contains("rgb.txt (line 2) is a folder") && !err.contains("does not exist"), "{err}");
 }

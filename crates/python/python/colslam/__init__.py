@@ -9,7 +9,8 @@ See docs/python.md for the whole API, its conventions and its exceptions.
 """
 
 from . import _colslam
-from ._colslam import Camera, Result, __version__, evaluate, read_model
+from ._colslam import Camera, Result, __version__, evaluate, option_names, read_model
+from . import errors
 from .errors import (
     CameraError,
     ColslamError,
@@ -26,14 +27,8 @@ __all__ = [
     "option_names",
     "Result",
     "Camera",
-    "ColslamError",
-    "InputError",
-    "CameraError",
-    "OptionsError",
-    "UnknownOptionError",
-    "OutputError",
     "__version__",
-]
+] + errors.__all__
 
 
 def run(input, output=None, camera=None, *, progress=None, threads=0, **options):
@@ -81,8 +76,3 @@ ValueError) for a refused value, InputError, CameraError, OutputError, or
 ColslamError, with `colslam run`'s message. KeyboardInterrupt (Ctrl-C) stops
 the run after the current frame. The GIL is released while it runs.
 """ + _colslam.options_help()
-
-
-def option_names():
-    """The keyword of every option of run() (the flags of `colslam run`)."""
-    return _colslam.option_names()

@@ -1,9 +1,12 @@
 import os
-from typing import Any, Callable, Dict, List, Optional, Union
+from typing import Any, Callable, Optional, Union
 
 from ._colslam import Camera as Camera
 from ._colslam import Result as Result
 from ._colslam import __version__ as __version__
+from ._colslam import evaluate as evaluate
+from ._colslam import option_names as option_names
+from ._colslam import read_model as read_model
 from .errors import CameraError as CameraError
 from .errors import ColslamError as ColslamError
 from .errors import InputError as InputError
@@ -24,19 +27,3 @@ def run(
 ) -> Result:
     """Runs the SLAM pipeline on a video or an image sequence, as `colslam run`
     (options: the flags of `colslam run`, snake_case; see help(colslam.run))."""
-
-def read_model(path: _Path) -> Result:
-    """A run's output folder or a COLMAP model folder as a Result."""
-
-def evaluate(
-    gt: _Path,
-    est: _Path,
-    *,
-    max_diff: Optional[float] = None,
-    offset: Optional[float] = None,
-    align: Optional[str] = None,
-    delta: Optional[int] = None,
-) -> Dict[str, Any]:
-    """`colslam eval --gt GT --est EST --json`'s numbers as a dict."""
-
-def option_names() -> List[str]: ...

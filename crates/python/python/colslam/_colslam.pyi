@@ -77,7 +77,9 @@ def run(
     threads: int = 0,
     options: Optional[Mapping[str, Any]] = None,
 ) -> Result: ...
-def read_model(path: _Path) -> Result: ...
+def read_model(path: _Path) -> Result:
+    """A run's output folder or a COLMAP model folder as a Result."""
+
 def evaluate(
     gt: _Path,
     est: _Path,
@@ -86,6 +88,8 @@ def evaluate(
     offset: Optional[float] = None,
     align: Optional[str] = None,
     delta: Optional[int] = None,
-) -> Dict[str, Any]: ...
+) -> Dict[str, Any]:
+    """`colslam eval --gt GT --est EST --json`'s numbers as a dict."""
+
 def options_help() -> str: ...
 def option_names() -> List[str]: ...

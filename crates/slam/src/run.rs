@@ -47,24 +47,19 @@ pub struct CameraOptions {
     pub preset: Option<String>,
     /// Focal length in pixels of an unknown camera (principal point at the image centre).
     ///
-    /// A prior: bundle adjustment refines it unless --fix-intrinsics is given.
+    /// Kept as given; --refine-intrinsics refines it by bundle adjustment.
     #[cfg_attr(feature = "cli", arg(long, value_name = "PIXELS", conflicts_with_all = ["camera", "preset"]))]
     pub focal: Option<f64>,
-    /// Keep a camera without calibration (`--focal`, EXIF or the guess) as it is: no refinement.
-    ///
-    /// By default such a camera's focal length and distortion are refined by
-    /// bundle adjustment; a calibration from a file or a preset is kept unless
-    /// --refine-intrinsics is given.
-    #[cfg_attr(feature = "cli", arg(long, conflicts_with = "refine_intrinsics"))]
-    pub fix_intrinsics: bool,
 }
 
 impl CameraOptions {
     /// Whether bundle adjustment refines the intrinsics of a camera from
-    /// `source`: always with `--refine-intrinsics`, for a prior (`--focal`,
-    /// EXIF, the guess) unless `--fix-intrinsics`, never for a calibration.
+    /// `source`: with `--refine-intrinsics`, and always for a guess. A
+    /// measured focal length (`--focal`, EXIF) is kept: refined from the
+    /// first keyframes it runs away on the KITTI clip (984 to 22825 px, 40
+    /// of 268 frames; docs/history.md).
     pub fn refines(&self, source: &CameraSource, refine_intrinsics: bool) -> bool {
-        !self.fix_intrinsics && (refine_intrinsics || source.is_prior())
+        refine_intrinsics || *source == CameraSource::Guessed
     }
 }
 
@@ -180,13 +175,6 @@ impl RunConfig {
         }
         if let Some(name) = &self.camera.preset {
             preset_camera(name)?;
-        }
-        if self.camera.fix_intrinsics && self.options.slam.refine.refine_intrinsics {
-            return Err(SlamError::InvalidOption {
-                name: "fix-intrinsics",
-                value: "true".into(),
-                reason: "contradicts --refine-intrinsics; give one of them".into(),
-            });
         }
         if self.output.exists() && !self.output.is_dir() {
             let reason = "the output exists and is not a folder".to_string();
@@ -437,9 +425,9 @@ pub fn run(config: &RunConfig, events: EventSink, mut hooks: RunHooks<'_>) -> Re
     // A focal length that is only a prior is refined by bundle adjustment.
     slam_opts.refine.refine_intrinsics = config.camera.refines(&resolved.source, slam_opts.refine.refine_intrinsics);
     if slam_opts.refine.refine_intrinsics {
-        tracing::info!("intrinsics: refined by bundle adjustment (--fix-intrinsics keeps them)");
+        tracing::info!("intrinsics: refined by bundle adjustment");
     } else if resolved.source.is_prior() {
-        tracing::info!("intrinsics: kept as given (--fix-intrinsics)");
+        tracing::info!("intrinsics: kept as given (--refine-intrinsics refines them)");
     }
     let mut slam = Slam::new(slam_opts.clone(), &resolved.camera, events)?;
     if let Some(gt) = &config.gt {
@@ -483,7 +471,7 @@ fn note_unknown_calibration(source: &CameraSource, result: &mut SlamResult) {
     }
     let note = "calibration could not be estimated: no map could be made (the frames show no parallax: a static \
                 camera or a pure rotation); give the camera with --camera FILE or --preset NAME, or its focal \
-                length with --focal PIXELS --fix-intrinsics, and a part of the video where the camera moves";
+                length with --focal PIXELS, and a part of the video where the camera moves";
     tracing::warn!("{note}");
     result.stats.notes.push(note.to_string());
 }
@@ -506,9 +494,6 @@ fn intrinsics_summary(end: &RunEnd<'_>, report: &RunReport) -> Option<Intrinsics
             report.keyframes,
             end.focal_start
         );
-    }
-    if end.camera_source == CameraSource::Guessed && !refined {
-        tracing::warn!("camera: the focal length {focal_end:.1} px is a guess kept fixed (--fix-intrinsics)");
     }
     Some(summary)
 }
@@ -679,8 +664,6 @@ mod tests {
     fn config(input: &Path, output: &Path, max_frames: usize, text: bool) -> RunConfig {
         let mut c = RunConfig::new(input, output);
         c.camera.focal = Some(131.25);
-        // Kept as given so that the written camera is the given one.
-        c.camera.fix_intrinsics = true;
         c.options.input.max_frames = Some(max_frames);
         c.options.text = text;
         c
@@ -814,11 +797,11 @@ mod tests {
     }
 
     #[test]
-    fn a_given_focal_is_a_prior_refined_unless_fixed() {
+    fn a_given_focal_is_kept_unless_refinement_is_asked() {
         let root = tempfile::tempdir().unwrap_or_else(|e| panic!("tempdir: {e}"));
         let input = sequence(root.path(), 20);
         let mut c = config(&input, &root.path().join("free"), 20, false);
-        c.camera.fix_intrinsics = false;
+        c.options.slam.refine.refine_intrinsics = true;
         let free = run(&c, EventSink::none(), RunHooks::default()).unwrap_or_else(|e| panic!("run: {e}"));
         let i = free.report.intrinsics.clone().unwrap_or_else(|| panic!("no intrinsics in the report"));
         assert!(i.refined, "{i:?}");
@@ -828,18 +811,13 @@ mod tests {
             .unwrap_or_else(|e| panic!("run: {e}"));
         let i = fixed.report.intrinsics.clone().unwrap_or_else(|| panic!("no intrinsics in the report"));
         assert!(!i.refined && i.focal_end_px == 131.25, "{i:?}");
-        // Both switches at once is a contradiction, named before the run.
-        c.camera.fix_intrinsics = true;
-        c.options.slam.refine.refine_intrinsics = true;
-        let e = c.validate().map(|_| ()).unwrap_err().to_string();
-        assert!(e.contains("fix-intrinsics"), "{e}");
-        // Which sources are priors.
+        // Only a guess is refined without being asked.
         let o = CameraOptions::default();
-        assert!(o.refines(&CameraSource::Focal, false) && o.refines(&CameraSource::Guessed, false));
+        assert!(o.refines(&CameraSource::Guessed, false));
         let exif = CameraSource::Exif { path: "a.jpg".into(), tags: "35mm_equivalent".into() };
-        assert!(o.refines(&exif, false));
-        assert!(!o.refines(&CameraSource::Preset { name: "x".into() }, false));
-        assert!(o.refines(&CameraSource::Preset { name: "x".into() }, true));
+        for source in [CameraSource::Focal, exif, CameraSource::Preset { name: "x".into() }] {
+            assert!(!o.refines(&source, false) && o.refines(&source, true), "{source:?}");
+        }
     }
 
     #[test]

@@ -111,7 +111,7 @@ pub fn parabolic_search<E>(
         // The best sample and its neighbours (the three at the end when it is one).
         let mid = best.clamp(1, sorted.len().saturating_sub(2).max(1));
         let Some(&[a, b, c]) =
-            sorted.get(mid.saturating_sub(1)..mid + 2).map(|s| <&[(f64, f64); 3]>::try_from(s).ok()).flatten()
+            sorted.get(mid.saturating_sub(1)..mid + 2).and_then(|s| <&[(f64, f64); 3]>::try_from(s).ok())
         else {
             break;
         };

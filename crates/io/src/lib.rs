@@ -20,6 +20,7 @@
 
 mod detect;
 mod error;
+pub mod exif;
 mod header;
 mod layouts;
 mod natural;
@@ -105,6 +106,11 @@ pub trait FrameSource: Iterator<Item = Result<Frame, SourceError>> + Send {
     /// A calibration file in the dataset's own format that `colslam_camera`
     /// may not read (EuRoC `sensor.yaml`, KITTI `calib.txt`), for reference.
     fn native_calibration_file(&self) -> Option<PathBuf> {
+        None
+    }
+    /// The first image file of an image sequence (its EXIF block may name
+    /// the focal length); `None` for a video.
+    fn first_image(&self) -> Option<&Path> {
         None
     }
     /// The kind of source.

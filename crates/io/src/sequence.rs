@@ -267,6 +267,9 @@ impl FrameSource for ImageSequence {
     fn native_calibration_file(&self) -> Option<PathBuf> {
         self.native_calibration.clone()
     }
+    fn first_image(&self) -> Option<&Path> {
+        self.entries.first().map(|e| e.path.as_path())
+    }
     fn kind(&self) -> SourceKind {
         self.kind
     }

@@ -1,5 +1,5 @@
 //! Fuzzing of the image readers: the header reader (`image_size`, PNG and
-//! JPEG) and the decoders (`colslam_image::Image::decode`). Mutated files
+//! JPEG), the EXIF focal-length parser and the decoders (`colslam_image::Image::decode`). Mutated files
 //! give a size / an image or an error, never a panic, a hang or a huge
 //! allocation. The decoder is fuzzed here, beside the header reader, for
 //! the JPEG fixture of these tests. See `colslam_testutil::fuzz`; the long
@@ -36,6 +36,24 @@ fn corpus() -> Corpus {
 fn fuzz_image_header() {
     let mut scratch = Scratch::new();
     fuzz("image-header", &corpus(), CI_ITERS, |parts| image_size(&scratch.put("image", Some(&parts[0]))));
+}
+
+/// JPEG heads with EXIF blocks (35 mm equivalent, focal plane, both): each
+/// gives a focal length unchanged, as the fuzzer requires of its corpus.
+fn exif_corpus() -> Corpus {
+    use colslam_io::exif::exif_jpeg_head;
+    Corpus::single("jpeg")
+        .sample(exif_jpeg_head(Some((50, 10)), Some(28), None))
+        .sample(exif_jpeg_head(Some((35, 1)), None, Some((2000, 1, 3))))
+        .sample(exif_jpeg_head(Some((41, 10)), Some(26), Some((5000, 3, 2))))
+        .words([&b"Exif\0\0"[..], b"MM\0\x2a", b"II\x2a\0", b"\x87\x69", b"\xa4\x05", b"\x92\x0a", b"\xff\xe1"])
+}
+
+#[test]
+fn fuzz_exif_focal() {
+    fuzz("exif-focal", &exif_corpus(), CI_ITERS, |parts| {
+        colslam_io::exif::parse_jpeg_exif_focal(&parts[0]).and_then(|e| e.focal_px(640, 480)).ok_or("no focal")
+    });
 }
 
 #[test]

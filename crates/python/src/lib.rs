@@ -109,7 +109,7 @@ fn run(
         return Err(e);
     }
     let out = outcome.map_err(|e| slam_error(py, &e, &config.output))?;
-    let readout = config.options.slam.refine.rolling_shutter;
+    let readout = out.report.camera.readout_s;
     Ok(RunResult::from_run(&out, config.output.clone(), readout, tmp))
 }
 

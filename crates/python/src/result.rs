@@ -106,7 +106,11 @@ impl RunResult {
         let readout = report
             .as_deref()
             .and_then(|r| serde_json::from_str::<serde_json::Value>(r).ok())
-            .and_then(|v| v.pointer("/options/refine/rolling_shutter").and_then(serde_json::Value::as_f64))
+            .and_then(|v| {
+                // The readout used (estimated with `auto`); older reports have only the option.
+                let used = v.pointer("/camera/readout_s").or_else(|| v.pointer("/options/refine/rolling_shutter"));
+                used.and_then(serde_json::Value::as_f64)
+            })
             .unwrap_or(0.0);
         let traj_path = dir.join("trajectory.tum");
         let (trajectory, names, keyframes) = if traj_path.is_file() {

@@ -46,8 +46,10 @@ pub use export::{
 };
 pub use frame::{FrameData, FrameId, FramePose, FrameRecord};
 pub use mapper::rolling_shutter;
-pub use options::{FeatureKind, MatcherKind, SlamOptions};
-pub use output::{OutputFormat, RUN_OUTPUT_NAMES, RunReport, begin_run_output, write_outputs, write_report};
+pub use options::{FeatureKind, MatcherKind, RollingShutter, SlamOptions};
+pub use output::{
+    IntrinsicsSummary, OutputFormat, RUN_OUTPUT_NAMES, RunReport, begin_run_output, write_outputs, write_report,
+};
 pub use pipeline::{MapResult, RunStats, Slam, SlamResult};
 pub use run::{CameraOptions, CameraSource, InputOptions, RunConfig, RunHooks, RunOptions, RunOutput, RunStart};
 pub use timing::{Stage, StageTimings};

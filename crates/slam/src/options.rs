@@ -372,17 +372,91 @@ pub struct RefineOptions {
     /// COLMAP registers every image; the model then holds every frame.
     #[cfg_attr(feature = "cli", arg(long))]
     pub refine_all_frames: bool,
-    /// Rolling-shutter readout time of the camera in seconds, in [0, 1) (0: global shutter).
+    /// Rolling-shutter readout time of the camera in seconds, in [0, 1) (0: global shutter), or `auto`.
     ///
     /// From the first row to the last. Observations are moved to their
     /// frame's middle-row time after mapping (TUM fr1's Kinect: 0.0333).
-    #[cfg_attr(feature = "cli", arg(long, value_name = "SECONDS", default_value_t = RefineOptions::default().rolling_shutter))]
-    pub rolling_shutter: f64,
+    /// `auto` estimates the readout from the mapped sequence and reports it.
+    #[cfg_attr(feature = "cli", arg(long, value_name = "SECONDS|auto", default_value_t = RefineOptions::default().rolling_shutter))]
+    pub rolling_shutter: RollingShutter,
 }
 
 impl Default for RefineOptions {
     fn default() -> Self {
-        Self { refine_intrinsics: false, localize_all_frames: true, refine_all_frames: false, rolling_shutter: 0.0 }
+        Self {
+            refine_intrinsics: false,
+            localize_all_frames: true,
+            refine_all_frames: false,
+            rolling_shutter: RollingShutter::Seconds(0.0),
+        }
+    }
+}
+
+/// The camera's rolling-shutter readout: given in seconds (0: a global
+/// shutter) or estimated from the data (`auto`). In JSON a number or the
+/// string `"auto"`, on the command line the same text.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum RollingShutter {
+    /// A known readout time, seconds (0: global shutter, no compensation).
+    Seconds(f64),
+    /// Estimated after mapping (`crate::rolling_shutter::AUTO_MAX_READOUT_S`
+    /// bounds the search) and then compensated.
+    Auto,
+}
+
+impl RollingShutter {
+    /// True unless the readout is a given 0 (nothing to compensate or estimate).
+    pub fn is_on(self) -> bool {
+        !matches!(self, Self::Seconds(s) if s == 0.0)
+    }
+}
+
+impl std::fmt::Display for RollingShutter {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Self::Seconds(s) => write!(f, "{s}"),
+            Self::Auto => f.write_str("auto"),
+        }
+    }
+}
+
+impl std::str::FromStr for RollingShutter {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        if s.eq_ignore_ascii_case("auto") {
+            return Ok(Self::Auto);
+        }
+        s.trim()
+            .parse()
+            .map(Self::Seconds)
+            .map_err(|_| format!("'{s}' is neither a readout time in seconds nor 'auto'"))
+    }
+}
+
+/// The JSON form: a number, or the string "auto".
+#[derive(Serialize, Deserialize)]
+#[serde(untagged)]
+enum RollingShutterJson {
+    Seconds(f64),
+    Text(String),
+}
+
+impl Serialize for RollingShutter {
+    fn serialize<S: serde::Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+        match *self {
+            Self::Seconds(v) => RollingShutterJson::Seconds(v),
+            Self::Auto => RollingShutterJson::Text("auto".into()),
+        }
+        .serialize(s)
+    }
+}
+
+impl<'de> Deserialize<'de> for RollingShutter {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        match RollingShutterJson::deserialize(d)? {
+            RollingShutterJson::Seconds(v) => Ok(Self::Seconds(v)),
+            RollingShutterJson::Text(t) => t.parse().map_err(serde::de::Error::custom),
+        }
     }
 }
 
@@ -457,8 +531,15 @@ impl SlamOptions {
         check(m.local_ba_images >= 2, "local-ba-images", m.local_ba_images, "must be at least 2")?;
         let g = m.global_ba_growth;
         check(g > 1.0 && g.is_finite(), "global-ba-growth", g, "must be greater than 1")?;
-        let rs = r.rolling_shutter;
-        check(in_range(rs, 0.0, 1.0), "rolling-shutter", rs, "must be a readout time in seconds in [0, 1)")
+        match r.rolling_shutter {
+            RollingShutter::Auto => Ok(()),
+            RollingShutter::Seconds(rs) => check(
+                in_range(rs, 0.0, 1.0),
+                "rolling-shutter",
+                rs,
+                "must be a readout time in seconds in [0, 1) or auto",
+            ),
+        }
     }
 }
 
@@ -497,11 +578,19 @@ mod tests {
     fn options_round_trip_through_json_and_reject_unknown_names() {
         let mut o = SlamOptions::default();
         o.frontend.features = FeatureKind::Xfeat;
-        o.refine.rolling_shutter = 0.03;
+        o.refine.rolling_shutter = RollingShutter::Seconds(0.03);
         let text = serde_json::to_string(&o).unwrap();
         assert!(text.contains("\"xfeat\""), "{text}");
+        assert!(text.contains("\"rolling_shutter\":0.03"), "{text}");
         let back: SlamOptions = serde_json::from_str(&text).unwrap();
         assert_eq!(back, o);
+        o.refine.rolling_shutter = RollingShutter::Auto;
+        let text = serde_json::to_string(&o).unwrap();
+        assert!(text.contains("\"rolling_shutter\":\"auto\""), "{text}");
+        assert_eq!(serde_json::from_str::<SlamOptions>(&text).unwrap(), o);
+        assert!(serde_json::from_str::<SlamOptions>(r#"{"refine": {"rolling_shutter": "fast"}}"#).is_err());
+        assert_eq!("auto".parse::<RollingShutter>(), Ok(RollingShutter::Auto));
+        assert_eq!("0.0333".parse::<RollingShutter>(), Ok(RollingShutter::Seconds(0.0333)));
         // Missing fields take their defaults; unknown ones are refused.
         let partial: SlamOptions = serde_json::from_str(r#"{"keyframes": {"flow_threshold": 0.1}}"#).unwrap();
         assert_eq!(partial.keyframes.flow_threshold, 0.1);

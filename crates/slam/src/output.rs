@@ -97,6 +97,9 @@ pub struct RunReport {
     /// Where the camera came from (file, preset, file beside the input,
     /// `--focal`, guessed); the camera the run ended with is `camera.yaml`.
     pub camera_source: Option<crate::run::CameraSource>,
+    /// Whether the intrinsics were refined by bundle adjustment, and the
+    /// focal length before and after.
+    pub intrinsics: Option<IntrinsicsSummary>,
     /// Frames processed before a stop was requested, when one was.
     pub stopped_after: Option<usize>,
     /// The evaluation against ground truth (`--gt`), as printed.
@@ -126,6 +129,20 @@ impl RunReport {
     }
 }
 
+/// What happened to the camera's focal length (see `RunReport::intrinsics`).
+#[derive(Debug, Clone, Serialize)]
+pub struct IntrinsicsSummary {
+    /// Refined by bundle adjustment (a prior: `--focal`, EXIF, the guess;
+    /// or `--refine-intrinsics`), or kept as given.
+    pub refined: bool,
+    /// Focal length the run started from, pixels.
+    pub focal_start_px: f64,
+    /// Focal length the largest map ended with, pixels.
+    pub focal_end_px: f64,
+    /// Registered keyframes of the largest map that constrained it.
+    pub keyframes: usize,
+}
+
 /// A camera in the report.
 #[derive(Debug, Clone, Serialize)]
 pub struct CameraSummary {
@@ -137,6 +154,12 @@ pub struct CameraSummary {
     pub height: u64,
     /// Parameters (after refinement, if enabled).
     pub params: Vec<f64>,
+    /// Rolling-shutter readout the largest map was compensated with,
+    /// seconds (0: none).
+    pub readout_s: f64,
+    /// Whether that readout was estimated (`--rolling-shutter auto`) rather
+    /// than given.
+    pub readout_estimated: bool,
 }
 
 /// Output format of the model.
@@ -251,8 +274,17 @@ pub fn write_outputs(
             width: c.width,
             height: c.height,
             params: c.params.clone(),
+            readout_s: result.maps.first().map_or(0.0, |m| m.readout_s),
+            readout_estimated: opts.refine.rolling_shutter == crate::options::RollingShutter::Auto,
         })
-        .unwrap_or(CameraSummary { model: String::new(), width: 0, height: 0, params: Vec::new() });
+        .unwrap_or(CameraSummary {
+            model: String::new(),
+            width: 0,
+            height: 0,
+            params: Vec::new(),
+            readout_s: 0.0,
+            readout_estimated: false,
+        });
     let frames = result.frames.len();
     let localized = first.map_or(0, |m| m.localized_frames);
     Ok(RunReport {
@@ -279,6 +311,7 @@ pub fn write_outputs(
         options: opts.clone(),
         camera_guessed: false,
         camera_source: None,
+        intrinsics: None,
         stopped_after: None,
         eval: None,
     })

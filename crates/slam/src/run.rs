@@ -11,11 +11,12 @@ use crate::error::SlamError;
 use crate::events::EventSink;
 use crate::frame::FrameData;
 use crate::options::SlamOptions;
-use crate::output::{OutputFormat, RunReport, begin_run_output, write_outputs, write_report};
+use crate::output::{IntrinsicsSummary, OutputFormat, RunReport, begin_run_output, write_outputs, write_report};
 use crate::pipeline::{Slam, SlamResult};
 use crate::timing::Stage;
 use colslam_camera::{Camera, presets};
 use colslam_image::OutputDir;
+use colslam_io::exif::{self, ExifFocalKind};
 use colslam_io::{Frame, FrameSource, SourceOptions, open_source};
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
@@ -45,8 +46,21 @@ pub struct CameraOptions {
     #[cfg_attr(feature = "cli", arg(long, value_name = "NAME", value_parser = clap::builder::PossibleValuesParser::new(presets::preset_names())))]
     pub preset: Option<String>,
     /// Focal length in pixels of an unknown camera (principal point at the image centre).
+    ///
+    /// Kept as given; --refine-intrinsics refines it by bundle adjustment.
     #[cfg_attr(feature = "cli", arg(long, value_name = "PIXELS", conflicts_with_all = ["camera", "preset"]))]
     pub focal: Option<f64>,
+}
+
+impl CameraOptions {
+    /// Whether bundle adjustment refines the intrinsics of a camera from
+    /// `source`: with `--refine-intrinsics`, and always for a guess. A
+    /// measured focal length (`--focal`, EXIF) is kept: refined from the
+    /// first keyframes it runs away on the KITTI clip (984 to 22825 px, 40
+    /// of 268 frames; docs/history.md).
+    pub fn refines(&self, source: &CameraSource, refine_intrinsics: bool) -> bool {
+        refine_intrinsics || *source == CameraSource::Guessed
+    }
 }
 
 /// The help heading of a run's input and output flags (the first group of
@@ -208,6 +222,13 @@ pub enum CameraSource {
     },
     /// `--focal F` with the principal point at the centre.
     Focal,
+    /// The EXIF focal length of the first image, principal point at the centre.
+    Exif {
+        /// The image.
+        path: PathBuf,
+        /// The tags used: `35mm_equivalent` or `focal_plane`.
+        tags: String,
+    },
     /// No calibration: the focal length is [`DEFAULT_FOCAL_FACTOR`] times the
     /// larger image side, refined by bundle adjustment.
     Guessed,
@@ -220,6 +241,14 @@ pub struct ResolvedCamera {
     pub camera: Camera,
     /// Where it came from.
     pub source: CameraSource,
+}
+
+impl CameraSource {
+    /// A focal length that is only a prior (given, read from EXIF or
+    /// guessed), not a calibration.
+    pub fn is_prior(&self) -> bool {
+        matches!(self, Self::Focal | Self::Exif { .. } | Self::Guessed)
+    }
 }
 
 impl ResolvedCamera {
@@ -260,14 +289,33 @@ pub fn resolve_camera(
         let reason = "cannot tell the image size; give --camera or --preset".to_string();
         return Err(SlamError::Path { path: input.to_path_buf(), reason });
     };
+    // OpenCV convention: the centre of a w-pixel row is at (w - 1) / 2.
+    let centred =
+        |f: f64| Camera::simple_pinhole(w as u64, h as u64, f, (w as f64 - 1.0) / 2.0, (h as f64 - 1.0) / 2.0);
+    if opts.focal.is_none()
+        && let Some(path) = source.first_image()
+        && let Some((f, kind)) = exif::read_exif_focal(path).and_then(|e| e.focal_px(w, h))
+    {
+        let tags = match kind {
+            ExifFocalKind::Equivalent35mm => "35mm_equivalent",
+            ExifFocalKind::FocalPlane => "focal_plane",
+        };
+        tracing::info!(
+            "camera: focal {f:.1} px from the EXIF block of {} ({tags}), principal point at the centre",
+            path.display()
+        );
+        return Ok(ResolvedCamera {
+            camera: centred(f),
+            source: CameraSource::Exif { path: path.to_path_buf(), tags: tags.into() },
+        });
+    }
     let guessed = opts.focal.is_none();
     let f = opts.focal.unwrap_or(DEFAULT_FOCAL_FACTOR * w.max(h) as f64);
-    // OpenCV convention: the centre of a w-pixel row is at (w - 1) / 2.
-    let camera = Camera::simple_pinhole(w as u64, h as u64, f, (w as f64 - 1.0) / 2.0, (h as f64 - 1.0) / 2.0);
+    let camera = centred(f);
     if guessed {
         tracing::warn!(
-            "no calibration: focal length guessed as {f:.1} px (principal point at the centre) and refined by bundle \
-             adjustment; give --camera, --preset or --focal for a known camera"
+            "no calibration: focal length guessed as {f:.1} px (principal point at the centre); give --camera, \
+             --preset or --focal for a known camera"
         );
     } else {
         tracing::info!("camera: focal {f:.1} px as given, principal point at the centre");
@@ -374,8 +422,13 @@ pub fn run(config: &RunConfig, events: EventSink, mut hooks: RunHooks<'_>) -> Re
     let source = open_source(&config.input, &opts.source())?;
     let resolved = resolve_camera(&config.camera, &config.input, source.as_ref())?;
     let mut slam_opts = opts.slam.clone();
-    // A guessed focal length is only a prior: bundle adjustment refines it.
-    slam_opts.refine.refine_intrinsics |= resolved.guessed();
+    // A focal length that is only a prior is refined by bundle adjustment.
+    slam_opts.refine.refine_intrinsics = config.camera.refines(&resolved.source, slam_opts.refine.refine_intrinsics);
+    if slam_opts.refine.refine_intrinsics {
+        tracing::info!("intrinsics: refined by bundle adjustment");
+    } else if resolved.source.is_prior() {
+        tracing::info!("intrinsics: kept as given (--refine-intrinsics refines them)");
+    }
     let mut slam = Slam::new(slam_opts.clone(), &resolved.camera, events)?;
     if let Some(gt) = &config.gt {
         slam.set_debug_ground_truth(colslam_eval::trajectory::Trajectory::read_tum(gt)?);
@@ -396,9 +449,53 @@ pub fn run(config: &RunConfig, events: EventSink, mut hooks: RunHooks<'_>) -> Re
     }
     let stopped_after = fed.stopped_after;
     let mut result = slam.finish()?;
-    let end = RunEnd { options: &slam_opts, stopped_after, camera_source: resolved.source.clone(), started };
+    if stopped_after.is_none() {
+        note_unknown_calibration(&resolved.source, &mut result);
+    }
+    let focal_start = 0.5 * (resolved.camera.focal_x() + resolved.camera.focal_y());
+    let end =
+        RunEnd { options: &slam_opts, stopped_after, camera_source: resolved.source.clone(), focal_start, started };
     let report = publish(output, config, &end, &mut result)?;
     Ok(RunOutput { report, result })
+}
+
+/// Says so, in the log and the report's notes, when a camera without
+/// calibration (`--focal`, EXIF, the guess) could not be estimated because
+/// no map could be made: a static camera or a pure rotation has no
+/// parallax, so neither the map nor the focal length is observable, and
+/// the run must say what to pass rather than leave an empty or wrong map
+/// unexplained.
+fn note_unknown_calibration(source: &CameraSource, result: &mut SlamResult) {
+    if !source.is_prior() || !result.maps.is_empty() {
+        return;
+    }
+    let note = "calibration could not be estimated: no map could be made (the frames show no parallax: a static \
+                camera or a pure rotation); give the camera with --camera FILE or --preset NAME, or its focal \
+                length with --focal PIXELS, and a part of the video where the camera moves";
+    tracing::warn!("{note}");
+    result.stats.notes.push(note.to_string());
+}
+
+/// The focal length's story for the report and the log: where it started,
+/// where it ended, whether it was refined and over how many keyframes.
+fn intrinsics_summary(end: &RunEnd<'_>, report: &RunReport) -> Option<IntrinsicsSummary> {
+    let focal_end = *report.camera.params.first()?;
+    let refined = end.options.refine.refine_intrinsics;
+    let summary = IntrinsicsSummary {
+        refined,
+        focal_start_px: end.focal_start,
+        focal_end_px: focal_end,
+        keyframes: report.keyframes,
+    };
+    if refined {
+        let change = 100.0 * (focal_end / end.focal_start - 1.0);
+        tracing::info!(
+            "camera: focal {focal_end:.1} px, refined over {} keyframes from {:.1} px ({change:+.1} %)",
+            report.keyframes,
+            end.focal_start
+        );
+    }
+    Some(summary)
 }
 
 /// What the report says of a finished run besides its result.
@@ -406,6 +503,7 @@ struct RunEnd<'a> {
     options: &'a SlamOptions,
     stopped_after: Option<usize>,
     camera_source: CameraSource,
+    focal_start: f64,
     started: Instant,
 }
 
@@ -432,6 +530,7 @@ fn publish(
     report.stopped_after = end.stopped_after;
     report.camera_guessed = end.camera_source == CameraSource::Guessed;
     report.camera_source = Some(end.camera_source.clone());
+    report.intrinsics = intrinsics_summary(end, &report);
     report.timings_s = result.timings.clone();
     report.wall_time_s = end.started.elapsed().as_secs_f64();
     report.ms_per_frame = if report.frames > 0 { 1e3 * report.wall_time_s / report.frames as f64 } else { 0.0 };
@@ -633,6 +732,7 @@ mod tests {
                 options: &opts,
                 stopped_after: None,
                 camera_source: CameraSource::Focal,
+                focal_start: 500.0,
                 started: Instant::now(),
             };
             publish(begin_run_output(&c.output)?, c, &end, r)
@@ -694,6 +794,81 @@ mod tests {
             let read = |dir: &Path| std::fs::read(dir.join(name)).unwrap_or_else(|e| panic!("{name}: {e}"));
             assert!(read(&first) == read(&second), "{name} differs when the written camera is given back");
         }
+    }
+
+    #[test]
+    fn a_given_focal_is_kept_unless_refinement_is_asked() {
+        let root = tempfile::tempdir().unwrap_or_else(|e| panic!("tempdir: {e}"));
+        let input = sequence(root.path(), 20);
+        let mut c = config(&input, &root.path().join("free"), 20, false);
+        c.options.slam.refine.refine_intrinsics = true;
+        let free = run(&c, EventSink::none(), RunHooks::default()).unwrap_or_else(|e| panic!("run: {e}"));
+        let i = free.report.intrinsics.clone().unwrap_or_else(|| panic!("no intrinsics in the report"));
+        assert!(i.refined, "{i:?}");
+        assert_eq!(i.focal_start_px, 131.25);
+        assert!(i.focal_end_px != 131.25, "refined: {i:?}");
+        let fixed = run(&config(&input, &root.path().join("fixed"), 20, false), EventSink::none(), RunHooks::default())
+            .unwrap_or_else(|e| panic!("run: {e}"));
+        let i = fixed.report.intrinsics.clone().unwrap_or_else(|| panic!("no intrinsics in the report"));
+        assert!(!i.refined && i.focal_end_px == 131.25, "{i:?}");
+        // Only a guess is refined without being asked.
+        let o = CameraOptions::default();
+        assert!(o.refines(&CameraSource::Guessed, false));
+        let exif = CameraSource::Exif { path: "a.jpg".into(), tags: "35mm_equivalent".into() };
+        for source in [CameraSource::Focal, exif, CameraSource::Preset { name: "x".into() }] {
+            assert!(!o.refines(&source, false) && o.refines(&source, true), "{source:?}");
+        }
+    }
+
+    #[test]
+    fn a_photo_folder_takes_its_focal_length_from_exif() {
+        let root = tempfile::tempdir().unwrap_or_else(|e| panic!("tempdir: {e}"));
+        let dir = root.path().join("photos");
+        std::fs::create_dir_all(&dir).unwrap_or_else(|e| panic!("{e}"));
+        // An EXIF block (28 mm equivalent) and a frame header of 640x480.
+        let mut jpeg = exif::exif_jpeg_head(Some((50, 10)), Some(28), None);
+        jpeg.extend([0xFF, 0xC0, 0, 17, 8, 0x01, 0xE0, 0x02, 0x80, 3]);
+        jpeg.extend([1, 0x22, 0, 2, 0x11, 1, 3, 0x11, 1, 0xFF, 0xD9]);
+        for name in ["0000.jpg", "0001.jpg"] {
+            std::fs::write(dir.join(name), &jpeg).unwrap_or_else(|e| panic!("{e}"));
+        }
+        let source = open_source(&dir, &SourceOptions::default()).unwrap_or_else(|e| panic!("{e}"));
+        let r = resolve_camera(&CameraOptions::default(), &dir, source.as_ref()).unwrap_or_else(|e| panic!("{e}"));
+        let want = CameraSource::Exif { path: dir.join("0000.jpg"), tags: "35mm_equivalent".into() };
+        assert_eq!(r.source, want);
+        assert!((r.camera.focal_x() - 28.0 * 640.0 / 36.0).abs() < 1e-9, "{:?}", r.camera);
+        // A given focal length wins over EXIF.
+        let given = CameraOptions { focal: Some(400.0), ..CameraOptions::default() };
+        let r = resolve_camera(&given, &dir, source.as_ref()).unwrap_or_else(|e| panic!("{e}"));
+        assert_eq!((r.source, r.camera.focal_x()), (CameraSource::Focal, 400.0));
+    }
+
+    #[test]
+    fn a_static_camera_without_calibration_says_what_to_pass() {
+        // A pure rotation is not caught yet: it makes a small wrong map
+        // (docs/history.md, issue 16); a static camera makes none.
+        let root = tempfile::tempdir().unwrap_or_else(|e| panic!("tempdir: {e}"));
+        let opts = colslam_synth::SynthOptions { frames: 2, width: 160, height: 120, seed: 5, ..Default::default() };
+        let seq = colslam_synth::SyntheticSequence::new(&opts).unwrap_or_else(|e| panic!("sequence: {e}"));
+        let input = root.path().join("static");
+        std::fs::create_dir_all(&input).unwrap_or_else(|e| panic!("mkdir: {e}"));
+        let image = seq.render(0).unwrap_or_else(|e| panic!("render: {e}"));
+        for i in 0..25 {
+            image.write_png(&input.join(format!("{i:06}.png"))).unwrap_or_else(|e| panic!("png: {e}"));
+        }
+        let said = |c: &RunConfig| {
+            let r = run(c, EventSink::none(), RunHooks::default()).unwrap_or_else(|e| panic!("run: {e}"));
+            assert!(r.result.maps.is_empty(), "no map from a static camera");
+            r.report.notes.iter().any(|n| n.contains("calibration could not be estimated") && n.contains("--camera"))
+        };
+        assert!(said(&RunConfig::new(&input, root.path().join("guessed"))), "the guess is named");
+        // A calibrated camera needs no calibration advice.
+        let mut calibrated = RunConfig::new(&input, root.path().join("preset"));
+        calibrated.camera.camera = Some(root.path().join("camera.yaml"));
+        let camera = Camera::pinhole(160, 120, 131.25, 131.25, 79.5, 59.5);
+        std::fs::write(root.path().join("camera.yaml"), colslam_camera::file::to_yaml_string(&camera))
+            .unwrap_or_else(|e| panic!("{e}"));
+        assert!(!said(&calibrated));
     }
 
     #[test]

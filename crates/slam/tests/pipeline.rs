@@ -293,7 +293,7 @@ fn rolling_shutter_compensation_brings_tum_rpy_under_1_5_cm() {
     assert_eq!(frames.len(), 200);
     let gt = Trajectory::read_tum(&dir.join("groundtruth.txt")).expect("ground truth");
     let mut opts = SlamOptions::default();
-    opts.refine.rolling_shutter = 1.0 / 30.0;
+    opts.refine.rolling_shutter = colslam_slam::RollingShutter::Seconds(1.0 / 30.0);
     let r = run(&frames, &camera, opts, EventSink::none());
     assert_eq!(r.maps.len(), 1, "notes: {:?}", r.stats.notes);
     let localized = r.maps[0].poses.len();

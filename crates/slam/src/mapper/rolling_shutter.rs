@@ -19,20 +19,121 @@
 //! adjustment in the literature (e.g. Hedborg et al., "Rolling shutter bundle
 //! adjustment", CVPR 2012); ours keeps the velocities fixed from the first
 //! solution instead of estimating them in BA.
+//!
+//! `--rolling-shutter auto` estimates the readout the same way: with the
+//! velocities of the first solution fixed, the bundle-adjustment cost of the
+//! keyframes as a function of the readout is a one-dimensional problem
+//! (observations move linearly with it, so the cost is close to a parabola),
+//! minimised by successive parabolic interpolation over a few bundle
+//! adjustments from the same start. A global shutter gives its minimum at 0.
 
 use super::localize::Localization;
 use super::state::Mapper;
 use crate::frame::FramePose;
 use crate::options::{GlobalBaTolerance, SlamOptions};
-use crate::timing::StageTimings;
+use crate::timing::{Stage, StageTimings};
 use colslam_camera::Camera;
 use colslam_geometry::{Quat, Vec2, Vec3};
 use colslam_sfm::SfmError;
+use colslam_sfm::bundle::adjust_global;
 use std::collections::HashMap;
 
 /// A frame's angular velocity is taken from its neighbours only when they
 /// are at most this far apart in time (seconds).
 pub const MAX_GAP_S: f64 = 1.0;
+
+/// Upper end of the readout search of `--rolling-shutter auto`, seconds. A
+/// readout cannot exceed the frame period; 1/24 s (the slowest common video
+/// rate) with a margin bounds it.
+pub const AUTO_MAX_READOUT_S: f64 = 0.05;
+
+/// Bundle adjustments the readout search may run (three to bracket, the
+/// rest to refine the parabola's vertex).
+pub const AUTO_EVALUATIONS: usize = 5;
+
+/// The search stops when its next readout is this close (seconds) to one
+/// already scored: well under what the compensation can tell apart.
+pub const AUTO_READOUT_TOLERANCE_S: f64 = 0.5e-3;
+
+/// Least relative decrease of the scoring cost, from readout 0 to the best
+/// readout, for `auto` to report a rolling shutter: a global-shutter camera
+/// still gains a little from a small readout that absorbs noise (the
+/// synthetic default 0.06 %, Strecha 0), a rolling shutter much more (TUM
+/// fr1 about 5 %; docs/benchmarks.md).
+pub const AUTO_MIN_GAIN: f64 = 0.01;
+
+/// The readout `auto` reports from the search's samples `(readout, cost)`:
+/// the one of least cost, or 0 when it lowers the cost at readout 0 by less
+/// than [`AUTO_MIN_GAIN`] (or no sample is at 0).
+pub fn chosen_readout(samples: &[(f64, f64)]) -> f64 {
+    let Some(&(_, at_zero)) = samples.iter().find(|s| s.0 == 0.0) else { return 0.0 };
+    let Some(&(best, cost)) = samples.iter().min_by(|a, b| a.1.total_cmp(&b.1)) else { return 0.0 };
+    if at_zero > 0.0 && (at_zero - cost) / at_zero >= AUTO_MIN_GAIN { best } else { 0.0 }
+}
+
+/// Function tolerance of the bundle adjustments that score a readout: the
+/// periodic tolerance stops the ones far from the start (large readouts)
+/// too early and biases the search towards 0; full convergence costs twice
+/// the iterations for the same estimate (docs/history.md).
+pub const AUTO_BA_FUNCTION_TOLERANCE: f64 = 1e-5;
+
+/// The bundle adjustment that scores a readout: the global one with a
+/// soft-L1 loss of 1 px, so that the observations the map's filter kept at
+/// readout 0 and that a readout moves away do not dominate the score
+/// (with the squared loss the search found 0 on TUM fr1, docs/history.md).
+fn auto_readout_ba(opts: &SlamOptions) -> colslam_sfm::bundle::BundleOptions {
+    let mut ba = opts.mapper.global_ba(GlobalBaTolerance::Periodic);
+    ba.ba.function_tolerance = AUTO_BA_FUNCTION_TOLERANCE;
+    ba.ba.loss = colslam_optim::LossFunction::SoftL1(1.0);
+    ba
+}
+
+/// Minimises `cost` over `[0, hi]` by successive parabolic interpolation:
+/// scores 0, `hi / 2` and `hi`, then the vertex of the parabola through the
+/// best sample and its two nearest neighbours (clamped to the range; the
+/// better end when the three are not convex), until `evaluations` scores or
+/// the next point is within `tol` of a scored one. Returns the best scored
+/// point and every sample `(x, cost)` in the order scored.
+pub fn parabolic_search<E>(
+    hi: f64,
+    evaluations: usize,
+    tol: f64,
+    mut cost: impl FnMut(f64) -> Result<f64, E>,
+) -> Result<(f64, Vec<(f64, f64)>), E> {
+    let mut samples: Vec<(f64, f64)> = Vec::new();
+    for x in [0.0, 0.5 * hi, hi].into_iter().take(evaluations.max(1)) {
+        samples.push((x, cost(x)?));
+    }
+    while samples.len() < evaluations {
+        let mut sorted = samples.clone();
+        sorted.sort_by(|a, b| a.0.total_cmp(&b.0));
+        let best = (0..sorted.len()).min_by(|&a, &b| sorted[a].1.total_cmp(&sorted[b].1)).unwrap_or(0);
+        // The best sample and its neighbours (the three at the end when it is one).
+        let mid = best.clamp(1, sorted.len().saturating_sub(2).max(1));
+        let Some(&[a, b, c]) =
+            sorted.get(mid.saturating_sub(1)..mid + 2).and_then(|s| <&[(f64, f64); 3]>::try_from(s).ok())
+        else {
+            break;
+        };
+        let next = parabola_vertex(a, b, c).unwrap_or(sorted[best].0).clamp(0.0, hi);
+        if samples.iter().any(|s| (s.0 - next).abs() < tol) {
+            break;
+        }
+        samples.push((next, cost(next)?));
+    }
+    let best = samples.iter().min_by(|a, b| a.1.total_cmp(&b.1)).map_or(0.0, |s| s.0);
+    Ok((best, samples))
+}
+
+/// The abscissa of the minimum of the parabola through three points, `None`
+/// when they are not convex (or collinear).
+fn parabola_vertex((x0, y0): (f64, f64), (x1, y1): (f64, f64), (x2, y2): (f64, f64)) -> Option<f64> {
+    let d01 = (y1 - y0) / (x1 - x0);
+    let d12 = (y2 - y1) / (x2 - x1);
+    let curvature = (d12 - d01) / (x2 - x0);
+    let v = 0.5 * (x0 + x1) - d01 / (2.0 * curvature);
+    (curvature > 0.0 && v.is_finite()).then_some(v)
+}
 
 /// Camera-frame angular velocity (rad/s) of each posed frame, by frame
 /// index: the rotation from the previous to the next posed frame over their
@@ -83,6 +184,52 @@ pub fn compensate(camera: &Camera, px: &Vec2, w: &Vec3, readout: f64) -> Option<
 }
 
 impl Mapper {
+    /// Estimates the readout time (seconds) of a finished map from its first
+    /// localisation (`--rolling-shutter auto`): for each readout tried, the
+    /// keyframe observations are moved with the frames' angular velocities
+    /// and the keyframes bundle adjusted from the same start; the readout of
+    /// least cost wins ([`parabolic_search`] over `[0, AUTO_MAX_READOUT_S]`).
+    /// The map is left as it was. 0 for a map too small to tell.
+    pub fn estimate_readout(
+        &mut self,
+        first: &Localization,
+        opts: &SlamOptions,
+        timings: &mut StageTimings,
+    ) -> Result<f64, SfmError> {
+        let w = angular_velocities(&first.poses, MAX_GAP_S);
+        if self.rec.num_registered_images() < 3 || w.is_empty() {
+            return Ok(0.0);
+        }
+        let start = self.rec.clone();
+        let ba = auto_readout_ba(opts);
+        let refine = opts.refine.refine_intrinsics;
+        let searched = parabolic_search(AUTO_MAX_READOUT_S, AUTO_EVALUATIONS, AUTO_READOUT_TOLERANCE_S, |readout| {
+            self.rec = start.clone();
+            self.move_keyframe_observations(&w, readout)?;
+            let report = timings.time(Stage::GlobalBa, || adjust_global(&mut self.rec, refine, &ba))?;
+            tracing::debug!("map {}: readout {:.2} ms: BA cost {:.6e}", self.index, 1e3 * readout, report.final_cost);
+            Ok::<f64, SfmError>(report.final_cost)
+        });
+        self.rec = start;
+        let (best, samples) = searched?;
+        let readout = chosen_readout(&samples);
+        if readout == 0.0 && best > 0.0 {
+            tracing::info!(
+                "map {}: rolling-shutter readout estimated at 0 (a global shutter: {:.1} ms explains too little)",
+                self.index,
+                1e3 * best
+            );
+        } else {
+            tracing::info!(
+                "map {}: rolling-shutter readout estimated at {:.1} ms ({} bundle adjustments)",
+                self.index,
+                1e3 * readout,
+                samples.len()
+            );
+        }
+        Ok(readout)
+    }
+
     /// One round of rolling-shutter compensation of a finished map, from
     /// its first localisation: every keyframe observation and every
     /// non-keyframe record is moved, from its measured position, to its
@@ -96,16 +243,30 @@ impl Mapper {
     pub fn compensate_rolling_shutter(
         &mut self,
         first: Localization,
+        readout: f64,
         opts: &SlamOptions,
         timings: &mut StageTimings,
     ) -> Result<Localization, SfmError> {
         let w = angular_velocities(&first.poses, MAX_GAP_S);
-        let Some(moved) = self.move_observations(&w, opts.refine.rolling_shutter)? else { return Ok(first) };
+        let Some(moved) = self.move_observations(&w, readout)? else { return Ok(first) };
         self.global_refine(GlobalBaTolerance::Periodic, opts, timings)?;
         if moved == 0 {
             return Ok(first);
         }
         self.global_refine(GlobalBaTolerance::RollingShutter, opts, timings)?;
+        self.rec.update_point_errors()?;
+        self.localize_all(opts, timings)
+    }
+
+    /// Converges the map's bundle adjustment and localises every frame again:
+    /// what is left to do when the final BA stopped at the periodic tolerance
+    /// for a compensation and the estimated readout was 0.
+    pub fn converge_uncompensated(
+        &mut self,
+        opts: &SlamOptions,
+        timings: &mut StageTimings,
+    ) -> Result<Localization, SfmError> {
+        self.global_refine(GlobalBaTolerance::Converged, opts, timings)?;
         self.rec.update_point_errors()?;
         self.localize_all(opts, timings)
     }
@@ -122,20 +283,8 @@ impl Mapper {
         if readout == 0.0 || self.rec.num_registered_images() < 2 {
             return Ok(None);
         }
+        let moved = self.move_keyframe_observations(velocities, readout)?;
         let camera = self.camera()?.clone();
-        let mut moved = 0;
-        for kf in &self.keyframes {
-            let Some(w) = velocities.get(&kf.data.index()) else { continue };
-            if !self.rec.image(kf.image_id).is_some_and(|i| i.registered) {
-                continue;
-            }
-            for (k, px) in kf.data.pixels.iter().enumerate() {
-                if let Some((fixed, _)) = compensate(&camera, px, w, readout) {
-                    self.rec.set_point2d_xy(kf.image_id, k as u32, fixed)?;
-                    moved += 1;
-                }
-            }
-        }
         for r in &mut self.records {
             let Some(w) = velocities.get(&r.frame.index) else { continue };
             for o in &mut r.obs {
@@ -152,6 +301,31 @@ impl Mapper {
             velocities.len()
         );
         Ok(Some(moved))
+    }
+
+    /// Moves the observations of every registered keyframe with a velocity
+    /// to the middle-row time, from their measured pixels. Returns how many
+    /// moved.
+    fn move_keyframe_observations(
+        &mut self,
+        velocities: &HashMap<usize, Vec3>,
+        readout: f64,
+    ) -> Result<usize, SfmError> {
+        let camera = self.camera()?.clone();
+        let mut moved = 0;
+        for kf in &self.keyframes {
+            let Some(w) = velocities.get(&kf.data.index()) else { continue };
+            if !self.rec.image(kf.image_id).is_some_and(|i| i.registered) {
+                continue;
+            }
+            for (k, px) in kf.data.pixels.iter().enumerate() {
+                if let Some((fixed, _)) = compensate(&camera, px, w, readout) {
+                    self.rec.set_point2d_xy(kf.image_id, k as u32, fixed)?;
+                    moved += 1;
+                }
+            }
+        }
+        Ok(moved)
     }
 }
 
@@ -188,6 +362,33 @@ mod tests {
         for i in [0, 3, 6, 9] {
             assert!((v[&i] - w).norm() < 1e-9, "frame {i}");
         }
+    }
+
+    #[test]
+    fn the_search_finds_a_parabola_minimum_and_stays_at_zero_when_cost_rises() {
+        let mut calls = 0;
+        let (x, samples) = parabolic_search(0.05, 5, 1e-4, |t| {
+            calls += 1;
+            Ok::<f64, ()>(100.0 + 1e4 * (t - 0.0137) * (t - 0.0137))
+        })
+        .unwrap();
+        assert!((x - 0.0137).abs() < 1e-6, "{x} after {samples:?}");
+        assert!(calls <= 5);
+        // A cost that only rises: 0, after the three bracketing samples.
+        let (x, samples) = parabolic_search(0.05, 5, 1e-4, |t| Ok::<f64, ()>(1.0 + t)).unwrap();
+        assert_eq!((x, samples.len()), (0.0, 3));
+        // A minimum beyond the range: the upper end.
+        let (x, _) = parabolic_search(0.05, 5, 1e-4, |t| Ok::<f64, ()>((t - 0.2) * (t - 0.2))).unwrap();
+        assert!((x - 0.05).abs() < 1e-12, "{x}");
+    }
+
+    #[test]
+    fn a_readout_must_explain_enough_of_the_cost() {
+        // TUM fr1-like: 5 % less cost at 12 ms.
+        assert_eq!(chosen_readout(&[(0.0, 100.0), (0.025, 104.0), (0.012, 95.0)]), 0.012);
+        // Synthetic-like: 0.06 % is noise, a global shutter.
+        assert_eq!(chosen_readout(&[(0.0, 1190.3), (0.025, 1198.0), (0.0054, 1189.6)]), 0.0);
+        assert_eq!(chosen_readout(&[]), 0.0);
     }
 
     #[test]

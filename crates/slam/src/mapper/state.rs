@@ -275,7 +275,7 @@ impl Mapper {
     /// tolerance (the compensation ends with its own converged BA).
     pub fn finalize(&mut self, opts: &SlamOptions, timings: &mut StageTimings) -> Result<(), SfmError> {
         if self.rec.num_registered_images() >= 2 {
-            let tolerance = if opts.refine.rolling_shutter > 0.0 {
+            let tolerance = if opts.refine.rolling_shutter.is_on() {
                 GlobalBaTolerance::Periodic
             } else {
                 GlobalBaTolerance::Converged

@@ -227,7 +227,7 @@ impl Mapper {
             obs.push((*desc, kp.octave, v.norm()));
         }
         let view_cos = mean_dir.normalize().dot(&ray) / dist;
-        if obs.is_empty() || !(view_cos >= LOCAL_MAP_MIN_VIEW_COS) {
+        if obs.is_empty() || view_cos.is_nan() || view_cos < LOCAL_MAP_MIN_VIEW_COS {
             return None;
         }
         let (descriptor, ref_level, ref_dist) = obs[medoid(&obs)];
@@ -304,7 +304,9 @@ fn search_by_projection(
             }
         });
         let (h, i, level) = best;
-        if h > LOCAL_MAP_MAX_HAMMING || (second.1 == level && second.0 != u32::MAX && h as f32 > LOCAL_MAP_RATIO * second.0 as f32) {
+        if h > LOCAL_MAP_MAX_HAMMING
+            || (second.1 == level && second.0 != u32::MAX && h as f32 > LOCAL_MAP_RATIO * second.0 as f32)
+        {
             continue;
         }
         let entry = owner.entry(i).or_insert((h, n));

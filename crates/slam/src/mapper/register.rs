@@ -9,7 +9,9 @@ use super::state::{Keyframe, Mapper, keypoint_sigmas};
 use crate::error::SlamError;
 use crate::frame::FrameData;
 use crate::frontend::Frontend;
-use crate::options::{LOCAL_BA_MAX_COVISIBLE, REVISIT_MAX_ANGLE_DEG, REVISIT_MAX_SPACINGS, SlamOptions, VERIFY_MAX_ERROR_PX};
+use crate::options::{
+    LOCAL_BA_MAX_COVISIBLE, REVISIT_MAX_ANGLE_DEG, REVISIT_MAX_SPACINGS, SlamOptions, VERIFY_MAX_ERROR_PX,
+};
 use crate::timing::{Stage, StageTimings};
 use colslam_estimators::{
     AbsolutePoseReport, EstimatorError, essential_from_pose, estimate_absolute_pose, sampson_error_sq,

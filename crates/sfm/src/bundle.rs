@@ -61,6 +61,13 @@ impl BundleOptions {
 /// The up-to-`max_images` registered images sharing the most 3D points with
 /// `image_id` (COLMAP's `FindLocalBundle`), most shared first.
 pub fn most_connected_images(rec: &Reconstruction, image_id: ImageId, max_images: usize) -> Vec<ImageId> {
+    covisible_images(rec, image_id, 1, max_images)
+}
+
+/// The up-to-`max_images` images sharing at least `min_shared` 3D points
+/// with `image_id` (ORB-SLAM's covisible keyframes, whose graph links
+/// keyframes sharing 15 points), most shared first; ties: lower id.
+pub fn covisible_images(rec: &Reconstruction, image_id: ImageId, min_shared: usize, max_images: usize) -> Vec<ImageId> {
     let Some(img) = rec.image(image_id) else { return Vec::new() };
     let mut shared: BTreeMap<ImageId, usize> = BTreeMap::new();
     for p2 in &img.points2d {
@@ -71,7 +78,7 @@ pub fn most_connected_images(rec: &Reconstruction, image_id: ImageId, max_images
             }
         }
     }
-    let mut v: Vec<(ImageId, usize)> = shared.into_iter().collect();
+    let mut v: Vec<(ImageId, usize)> = shared.into_iter().filter(|(_, n)| *n >= min_shared).collect();
     v.sort_by(|a, b| b.1.cmp(&a.1).then(a.0.cmp(&b.0)));
     v.into_iter().take(max_images).map(|(id, _)| id).collect()
 }
@@ -280,10 +287,7 @@ pub fn adjust_global(
 }
 
 /// Local bundle adjustment around `image_id`: it and its up to
-/// `num_images - 1` most connected images vary, with every point they
-/// observe; other images observing those points are constant. When the
-/// bundle touches no constant image (a young map), its two least connected
-/// members fix the gauge (COLMAP's `AdjustLocalBundle`).
+/// `num_images - 1` most connected images vary ([`adjust_local_bundle`]).
 pub fn adjust_local(
     rec: &mut Reconstruction,
     image_id: ImageId,
@@ -293,9 +297,23 @@ pub fn adjust_local(
 ) -> Result<BaReport, SfmError> {
     let mut local = vec![image_id];
     local.extend(most_connected_images(rec, image_id, num_images.saturating_sub(1)));
+    adjust_local_bundle(rec, &local, refine_intrinsics, opts)
+}
+
+/// Local bundle adjustment of the images `local` (the new one first, then
+/// its neighbours, most connected first): they vary, with every point they
+/// observe; other images observing those points are constant. When the
+/// bundle touches no constant image (a young map), its two last members fix
+/// the gauge (COLMAP's `AdjustLocalBundle`).
+pub fn adjust_local_bundle(
+    rec: &mut Reconstruction,
+    local: &[ImageId],
+    refine_intrinsics: bool,
+    opts: &BundleOptions,
+) -> Result<BaReport, SfmError> {
     let variable: BTreeSet<ImageId> = local.iter().copied().collect();
     let mut points = BTreeSet::new();
-    for id in &local {
+    for id in local {
         if let Some(img) = rec.image(*id) {
             points.extend(img.points2d.iter().filter_map(|p| p.point3d_id));
         }

@@ -210,6 +210,14 @@ pub struct MapperOptions {
     /// keyframes ties the new tracks to the old points.
     #[cfg_attr(feature = "cli", arg(long, value_name = "N", default_value_t = MapperOptions::default().match_revisited))]
     pub match_revisited: usize,
+    /// Keyframes of the local map a new keyframe is tracked against (0: off).
+    ///
+    /// After its pose from the recent keyframes, the points of the keyframes
+    /// sharing points with it (and of their neighbours) are projected into it
+    /// and matched in a small window, so tracks run over many keyframes
+    /// (ORB-SLAM's local-map tracking).
+    #[cfg_attr(feature = "cli", arg(long, value_name = "N", default_value_t = MapperOptions::default().local_map_keyframes))]
+    pub local_map_keyframes: usize,
     /// A keyframe keeping fewer 3D points than this is deregistered (paper 3.5).
     #[cfg_attr(feature = "cli", arg(long, value_name = "N", default_value_t = MapperOptions::default().min_keyframe_points))]
     pub min_keyframe_points: usize,
@@ -232,6 +240,13 @@ pub struct MapperOptions {
     /// Keyframes in a local bundle adjustment, at least 2: the new one and its most connected (paper 3.6).
     #[cfg_attr(feature = "cli", arg(long, value_name = "N", default_value_t = MapperOptions::default().local_ba_images))]
     pub local_ba_images: usize,
+    /// Local BA over the covisible keyframes instead (0: off): every keyframe sharing at least N points with the new one.
+    ///
+    /// ORB-SLAM's local BA (its covisibility graph links keyframes sharing
+    /// 15 points); the keyframes that observe those points beyond them stay
+    /// fixed. At most [`LOCAL_BA_MAX_COVISIBLE`] keyframes vary.
+    #[cfg_attr(feature = "cli", arg(long, value_name = "N", default_value_t = MapperOptions::default().local_ba_covisible))]
+    pub local_ba_covisible: usize,
     /// Global bundle adjustment once registered keyframes or points grew by this factor (> 1; COLMAP 1.1).
     #[cfg_attr(feature = "cli", arg(long, value_name = "FACTOR", default_value_t = MapperOptions::default().global_ba_growth))]
     pub global_ba_growth: f64,
@@ -247,12 +262,14 @@ impl Default for MapperOptions {
         Self {
             match_keyframes: 5,
             match_revisited: 5,
+            local_map_keyframes: 0,
             min_keyframe_points: 50,
             max_reproj_error: 4.0,
             min_tri_angle: 0.5,
             abs_pose_max_error: 6.0,
             abs_pose_min_inliers: 30,
             local_ba_images: 7,
+            local_ba_covisible: 0,
             global_ba_growth: 1.1,
             weight_by_level: false,
         }
@@ -276,6 +293,27 @@ pub const REVISIT_MAX_ANGLE_DEG: f64 = 30.0;
 
 /// Largest distance between their centres, in median keyframe spacings.
 pub const REVISIT_MAX_SPACINGS: f64 = 10.0;
+
+/// Search radius of local-map tracking at pyramid level 0, pixels (ORB-SLAM's
+/// window for a point seen obliquely; 0.625 of it for one seen head-on),
+/// growing by the level scale per level.
+pub const LOCAL_MAP_RADIUS_PX: f64 = 4.0;
+
+/// Largest Hamming distance of a local-map match (ORB-SLAM's `TH_HIGH`).
+pub const LOCAL_MAP_MAX_HAMMING: u32 = 100;
+
+/// Ratio of the best to the second-best distance of a local-map match, when
+/// both keypoints are at one level (ORB-SLAM's local-map search).
+pub const LOCAL_MAP_RATIO: f32 = 0.8;
+
+/// A local-map point is searched for only when the new keyframe sees it
+/// within 60 degrees of its mean viewing direction (ORB-SLAM's
+/// `isInFrustum`).
+pub const LOCAL_MAP_MIN_VIEW_COS: f64 = 0.5;
+
+/// The most keyframes a covisible local BA varies (`--local-ba-covisible`),
+/// so that a map whose keyframes all see one scene keeps local BA local.
+pub const LOCAL_BA_MAX_COVISIBLE: usize = 30;
 
 /// Local BA stops once an iteration lowers the cost by less than this share
 /// of it (Ceres' function tolerance; COLMAP runs its local BA for up to 25

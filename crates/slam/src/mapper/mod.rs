@@ -16,6 +16,7 @@
 //! - rolling-shutter compensation (`rolling_shutter.rs`).
 
 pub(crate) mod init;
+mod local_map;
 mod localize;
 mod merge;
 mod register;

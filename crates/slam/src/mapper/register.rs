@@ -9,7 +9,9 @@ use super::state::{Keyframe, Mapper, keypoint_sigmas};
 use crate::error::SlamError;
 use crate::frame::FrameData;
 use crate::frontend::Frontend;
-use crate::options::{REVISIT_MAX_ANGLE_DEG, REVISIT_MAX_SPACINGS, SlamOptions, VERIFY_MAX_ERROR_PX};
+use crate::options::{
+    LOCAL_BA_MAX_COVISIBLE, REVISIT_MAX_ANGLE_DEG, REVISIT_MAX_SPACINGS, SlamOptions, VERIFY_MAX_ERROR_PX,
+};
 use crate::timing::{Stage, StageTimings};
 use colslam_estimators::{
     AbsolutePoseReport, EstimatorError, essential_from_pose, estimate_absolute_pose, sampson_error_sq,
@@ -18,7 +20,7 @@ use colslam_features::Match;
 use colslam_geometry::{Rigid3, Vec2, Vec3};
 use colslam_scene::{Image, ImageId, Point3DId, TrackElement};
 use colslam_sfm::SfmError;
-use colslam_sfm::bundle::{adjust_local, most_connected_images};
+use colslam_sfm::bundle::{adjust_local_bundle, covisible_images, most_connected_images};
 use colslam_sfm::triangulator::{complete_and_merge_image, retriangulate, triangulate_image};
 use std::collections::{BTreeSet, HashSet};
 
@@ -84,12 +86,18 @@ impl Mapper {
             self.keyframes.last().and_then(|k| self.rec.image(k.image_id)).map_or(0, Image::num_points3d),
             corr.points2d.len()
         );
-        let pose = match self.estimate_pose(&corr, focal, opts.seed ^ data.index() as u64, opts) {
+        let seed = opts.seed ^ data.index() as u64;
+        let pose = match self.estimate_pose(&corr, focal, seed, opts) {
             Ok(p) => p,
             Err(failure) => {
                 timings.add(Stage::Registration, started.elapsed());
                 return Ok(Registration::Rejected(failure));
             }
+        };
+        let (corr, pose) = if opts.mapper.local_map_keyframes > 0 {
+            self.track_local_map(data, corr, pose, focal, seed, opts)
+        } else {
+            (corr, pose)
         };
         // Older keyframes that look the same way (the camera came back to a
         // view it mapped before): matching them too ties the new keyframe's
@@ -263,10 +271,20 @@ impl Mapper {
         })
     }
 
-    /// The local bundle of a new image: it and its most connected images.
+    /// The local bundle of a new image: it and its most connected images,
+    /// or its covisible ones with `--local-ba-covisible`.
     pub(crate) fn local_bundle(&self, image_id: ImageId, opts: &SlamOptions) -> Vec<ImageId> {
         let mut bundle = vec![image_id];
-        bundle.extend(most_connected_images(&self.rec, image_id, opts.mapper.local_ba_images - 1));
+        let (m, n) = (&opts.mapper, LOCAL_BA_MAX_COVISIBLE - 1);
+        match m.local_ba_covisible {
+            0 => bundle.extend(most_connected_images(&self.rec, image_id, m.local_ba_images - 1)),
+            min => bundle.extend(covisible_images(&self.rec, image_id, min, n)),
+        }
+        // A young map's new keyframe may share fewer points than that with
+        // every other: then its most connected one joins it.
+        if bundle.len() < 2 {
+            bundle.extend(most_connected_images(&self.rec, image_id, 1));
+        }
         bundle
     }
 
@@ -285,8 +303,8 @@ impl Mapper {
         // does not constrain them, and the camera every later frame is
         // normalised with would follow its noise; global refinement refines
         // them.
-        let n = opts.mapper.local_ba_images;
-        let ba = timings.time(Stage::LocalBa, || adjust_local(&mut self.rec, image_id, n, false, &ba_opts))?;
+        let bundle = self.local_bundle(image_id, opts);
+        let ba = timings.time(Stage::LocalBa, || adjust_local_bundle(&mut self.rec, &bundle, false, &ba_opts))?;
         tracing::debug!(
             "frame {frame}: local BA cost {:.4e} -> {:.4e} in {} iterations ({:?}), {} variable poses",
             ba.initial_cost,
@@ -296,7 +314,7 @@ impl Mapper {
             ba.num_variable_poses
         );
         let mut local_points: BTreeSet<Point3DId> = BTreeSet::new();
-        for id in self.local_bundle(image_id, opts) {
+        for id in bundle {
             if let Some(img) = self.rec.image(id) {
                 local_points.extend(img.points2d.iter().filter_map(|p| p.point3d_id));
             }

@@ -701,6 +701,42 @@ fn a_revisit_ties_the_new_keyframe_to_the_old_points() {
 }
 
 #[test]
+fn tracking_against_the_local_map_continues_the_old_tracks() {
+    // As above, frame 6 comes back near frame 1, but it is matched to the
+    // reference (frame 5) alone: only projecting the local map finds the
+    // old points the reference does not see.
+    let poses = (0..6).map(path_pose).chain([path_pose_at(1.3)]).collect();
+    let scene = Scene::new(poses, slab_points(500, 1), 7);
+    let frontend = scene.frontend();
+    let base = scene.exact_map(0, &[0, 1, 2, 3, 4, 5]);
+    let hidden: Vec<usize> = scene
+        .seen_by(&[0, 1, 2, 3, 4, 5], 2)
+        .into_iter()
+        .filter(|&p| scene.visible(6, p) && !scene.visible(5, p))
+        .collect();
+    assert!(hidden.len() > 10);
+    let run = |local_map: usize| {
+        let mut o = opts();
+        o.mapper.match_keyframes = 1;
+        o.mapper.match_revisited = 0;
+        o.mapper.local_map_keyframes = local_map;
+        let mut map = base.clone();
+        let id = registered(&mut map, &scene, 6, &frontend, &o);
+        // Checks too that no track joins two scene points.
+        let seen: BTreeSet<usize> = scene
+            .mapped(&map)
+            .into_iter()
+            .filter(|(_, pid)| map.rec.point3d(*pid).unwrap().track.iter().any(|e| e.image_id == id))
+            .map(|(t, _)| t)
+            .collect();
+        scene.assert_exact(&map);
+        hidden.iter().filter(|p| seen.contains(p)).count()
+    };
+    assert_eq!(run(10), hidden.len(), "every old point it sees");
+    assert_eq!(run(0), 0, "without the local map only the reference's points");
+}
+
+#[test]
 fn correspondences_take_the_first_match_of_each_keypoint_and_point() {
     let scene = Scene::translating(6);
     let map = scene.exact_map(0, &[0, 4]);
@@ -802,6 +838,15 @@ fn local_bundle_is_the_image_and_its_most_connected_images() {
     assert_eq!(bundle(t, 4), vec![t, a, b, c]);
     assert_eq!(bundle(t, 10), vec![t, a, b, c, d], "unconnected images stay out");
     assert_eq!(bundle(lone, 7), vec![lone, a]);
+    let covisible = |image: ImageId, min: usize| {
+        let mut o = opts();
+        o.mapper.local_ba_covisible = min;
+        map.local_bundle(image, &o)
+    };
+    assert_eq!(covisible(t, 3), vec![t, a, b, c], "every image sharing 3 points, not a count");
+    assert_eq!(covisible(t, 4), vec![t, a]);
+    assert_eq!(covisible(t, 6), vec![t, a], "none shares 6: the most connected joins");
+    assert_eq!(covisible(lone, 1), vec![lone, a]);
 }
 
 // ----- filtering -------------------------------------------------------------

@@ -32,8 +32,8 @@
 //! 5. Steered rBRIEF (256 learned pairs) on the level smoothed by a 7x7
 //!    Gaussian (sigma 2).
 //!
-//! 6. With `subpixel` (default), the position is refined between the pixels
-//!    of the level by a quadratic fit of the Harris response (`subpixel`).
+//! 6. With `subpixel` (default), the position is refined at the level to
+//!    sub-pixel accuracy by gradient-based corner refinement (`subpixel`).
 //!
 //! Keypoints are mapped back to level-0 pixels with pixel centres aligned
 //! (`x0 = (x + 0.5) * s - 0.5`, `s = width0 / width_level`, the sampling of
@@ -163,11 +163,11 @@ pub struct OrbOptions {
     pub selection: Selection,
     /// Harris `k` (default 0.04).
     pub harris_k: f32,
-    /// Refine each keypoint to sub-pixel accuracy at its level (a quadratic
-    /// fit of the Harris response around the detected pixel, see
-    /// `subpixel`) before mapping it to full resolution; descriptors and
-    /// orientation stay computed at the detected pixel. Without it a
-    /// keypoint of level `l` is quantised to `scale_factor^l` pixels.
+    /// Refine each keypoint to sub-pixel accuracy at its level (gradient-based
+    /// corner refinement around the detected pixel, see `subpixel`) before
+    /// mapping it to full resolution; descriptors and orientation stay
+    /// computed at the detected pixel (default on). Without it a keypoint of
+    /// level `l` is quantised to `scale_factor^l` pixels.
     pub subpixel: bool,
 }
 
@@ -555,11 +555,7 @@ impl OrbExtractor {
             let (x, y) = (c.x as usize, c.y as usize);
             let angle = self.orientation(plane, x, y);
             descs.push(describe(&blurred, x, y, angle));
-            let (rx, ry) = if self.opts.subpixel {
-                subpixel::refine(plane, x, y, self.opts.harris_k as f64)
-            } else {
-                (x as f64, y as f64)
-            };
+            let (rx, ry) = if self.opts.subpixel { subpixel::refine(plane, x, y) } else { (x as f64, y as f64) };
             kps.push(Keypoint {
                 x: ((rx + 0.5) * sx - 0.5) as f32,
                 y: ((ry + 0.5) * sy - 0.5) as f32,
@@ -974,32 +970,20 @@ mod tests {
     }
 
     /// A blob centred between pixels is found there at every level: the
-    /// sub-pixel fit and the pixel-centre mapping to full resolution put
-    /// the median keypoint within 0.2 level pixels of the true centre
-    /// (0.06-0.15 measured; integer positions 0.3-0.6, and a wrong mapping
-    /// such as OpenCV's `x * s` is off by up to `(s - 1) / 2` px).
+    /// sub-pixel refinement and the pixel-centre mapping to full resolution
+    /// put the median keypoint within 0.3 level pixels of the true centre
+    /// (0.06-0.27 measured, the most at level 0 where the largest blobs
+    /// exceed the refinement's window; integer positions 0.3-0.6, and a
+    /// wrong mapping such as OpenCV's `x * s` is off by up to `(s - 1) / 2`
+    /// px).
     #[test]
     fn subpixel_keypoints_find_blob_centres_at_every_level() {
         let refined = blob_errors(true);
         let integer = blob_errors(false);
         for (level, (&(n, e), &(n0, e0))) in refined.iter().zip(&integer).enumerate() {
             assert!(n >= 5 && n0 >= 5, "level {level}: {n} / {n0} blob keypoints");
-            assert!(e < 0.2 && e < 0.5 * e0, "level {level}: median error {e:.3} level px (integer {e0:.3})");
+            assert!(e < 0.3 && e < 0.6 * e0, "level {level}: median error {e:.3} level px (integer {e0:.3})");
             assert!(e0 > 0.25, "level {level}: integer positions {e0:.3} level px");
-        }
-    }
-
-    #[test]
-    fn harris_patch_centre_equals_the_detection_score() {
-        let p = random_plane(64, 48, 5);
-        for (x, y) in [(10, 10), (30, 20), (50, 37)] {
-            let r = subpixel::harris_3x3(&p, x, y, 0.04).unwrap();
-            for (dy, row) in r.iter().enumerate() {
-                for (dx, &v) in row.iter().enumerate() {
-                    let want = harris_response(&p, x + dx - 1, y + dy - 1, 0.04) as f64;
-                    assert!((v - want).abs() <= 1e-6 * want.abs().max(1e-6), "{x},{y} {dx},{dy}: {v} {want}");
-                }
-            }
         }
     }
 

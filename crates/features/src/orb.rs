@@ -32,8 +32,9 @@
 //! 5. Steered rBRIEF (256 learned pairs) on the level smoothed by a 7x7
 //!    Gaussian (sigma 2).
 //!
-//! 6. With `subpixel` (default), the position is refined at the level to
-//!    sub-pixel accuracy by gradient-based corner refinement (`subpixel`).
+//! 6. With `subpixel` (an option, off by default), the position is refined
+//!    at the level to sub-pixel accuracy by gradient-based corner
+//!    refinement (`subpixel`).
 //!
 //! Keypoints are mapped back to level-0 pixels with pixel centres aligned
 //! (`x0 = (x + 0.5) * s - 0.5`, `s = width0 / width_level`, the sampling of
@@ -166,8 +167,10 @@ pub struct OrbOptions {
     /// Refine each keypoint to sub-pixel accuracy at its level (gradient-based
     /// corner refinement around the detected pixel, see `subpixel`) before
     /// mapping it to full resolution; descriptors and orientation stay
-    /// computed at the detected pixel (default on). Without it a keypoint of
-    /// level `l` is quantised to `scale_factor^l` pixels.
+    /// computed at the detected pixel. Without it (default) a keypoint of
+    /// level `l` is quantised to `scale_factor^l` pixels. Off by default:
+    /// it sharpens keypoints on the synthetic sequence but made the runs on
+    /// the real sequences less accurate (docs/benchmarks.md).
     pub subpixel: bool,
 }
 
@@ -185,7 +188,7 @@ impl Default for OrbOptions {
             score: ScoreType::Harris,
             selection: Selection::Strongest,
             harris_k: 0.04,
-            subpixel: true,
+            subpixel: false,
         }
     }
 }
@@ -550,15 +553,21 @@ impl OrbExtractor {
         let mut kps = Vec::with_capacity(chosen.len());
         let mut descs = Vec::with_capacity(chosen.len());
         let scale = (sx * sy).sqrt();
-        let (sx, sy) = (sx as f64, sy as f64);
         for c in chosen {
             let (x, y) = (c.x as usize, c.y as usize);
             let angle = self.orientation(plane, x, y);
             descs.push(describe(&blurred, x, y, angle));
-            let (rx, ry) = if self.opts.subpixel { subpixel::refine(plane, x, y) } else { (x as f64, y as f64) };
+            // The integer path keeps its f32 arithmetic, so default keypoints
+            // stay bit for bit what they were before the option existed.
+            let (kx, ky) = if self.opts.subpixel {
+                let (rx, ry) = subpixel::refine(plane, x, y);
+                (((rx + 0.5) * sx as f64 - 0.5) as f32, ((ry + 0.5) * sy as f64 - 0.5) as f32)
+            } else {
+                ((c.x as f32 + 0.5) * sx - 0.5, (c.y as f32 + 0.5) * sy - 0.5)
+            };
             kps.push(Keypoint {
-                x: ((rx + 0.5) * sx - 0.5) as f32,
-                y: ((ry + 0.5) * sy - 0.5) as f32,
+                x: kx,
+                y: ky,
                 octave: level as u8,
                 angle,
                 response: c.response,

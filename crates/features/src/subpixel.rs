@@ -10,10 +10,12 @@
 //! condition of OpenCV's `cornerSubPix`), solved once more with the window
 //! re-centred on the estimate (bilinear samples).
 //!
-//! Measured against the synthetic generator's exact geometry this halves
-//! the median localisation error of matched keypoints, where a quadratic
-//! fit of the Harris response around the detected pixel (SIFT's refinement
-//! of its extrema) gained under 5 % (docs/benchmarks.md, "Precision").
+//! Measured against the synthetic generator's exact geometry this more than
+//! halves the median localisation error of matched keypoints, where a
+//! quadratic fit of the Harris response around the detected pixel (SIFT's
+//! refinement of its extrema) gained under 5 %; on the real sequences the
+//! runs got less accurate, so it is off by default (docs/benchmarks.md,
+//! "Precision (issue 14)").
 
 use crate::pyramid::Plane;
 

@@ -86,8 +86,9 @@ pub struct FrontendOptions {
     pub max_ratio: f32,
     /// Refine ORB keypoints to sub-pixel positions at their pyramid level.
     ///
-    /// Off, a keypoint of level l sits on that level's pixel grid,
-    /// 1.2^l pixels apart at full resolution.
+    /// Off (default), a keypoint of level l sits on that level's pixel grid,
+    /// 1.2^l pixels apart at full resolution. On, the synthetic sequence gets
+    /// more accurate but the real ones less (docs/benchmarks.md).
     #[cfg_attr(feature = "cli", arg(long, value_name = "BOOL", default_value_t = FrontendOptions::default().subpixel_keypoints, action = clap::ArgAction::Set))]
     pub subpixel_keypoints: bool,
 }
@@ -100,7 +101,7 @@ impl Default for FrontendOptions {
             num_features: 0,
             max_hamming: 64,
             max_ratio: 0.9,
-            subpixel_keypoints: true,
+            subpixel_keypoints: false,
         }
     }
 }

@@ -230,10 +230,10 @@ pub fn model_stats(dir: &Path) -> Result<ModelStats> {
     for (_, p) in rec.points3d() {
         let len = p.track.len();
         tracks.push(len as f64);
-        if let Some(b) = TRACK_BUCKETS.iter().position(|&(_, lo, hi)| (lo..=hi).contains(&len)) {
-            if let Some(c) = buckets.get_mut(b) {
-                *c += 1;
-            }
+        if let Some(c) =
+            TRACK_BUCKETS.iter().position(|&(_, lo, hi)| (lo..=hi).contains(&len)).and_then(|b| buckets.get_mut(b))
+        {
+            *c += 1;
         }
         for el in &p.track {
             let img = rec.image(el.image_id).context("a track names a missing image")?;

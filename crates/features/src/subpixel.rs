@@ -133,7 +133,7 @@ fn solve_step(block: &[f64; BLOCK * BLOCK], weights: &[f64], cx: f64, cy: f64) -
     }
     let det = a * c - b * b;
     // Relative to the tensor's scale: a straight edge has one zero eigenvalue.
-    if !(det > 1e-6 * (a + c) * (a + c)) {
+    if det.is_nan() || det <= 1e-6 * (a + c) * (a + c) {
         return None;
     }
     let (qx, qy) = ((c * bx - b * by) / det, (a * by - b * bx) / det);

@@ -13,9 +13,9 @@
 
 use crate::stdout::outln;
 mod plot;
-mod report;
+pub(crate) mod report;
 mod runner;
-mod sequences;
+pub(crate) mod sequences;
 
 use anyhow::{Context, Result, bail};
 use colslam_testutil::{PeerPythonError, find_peer_python, find_upwards};
@@ -159,12 +159,12 @@ fn parse_sweep(s: &str) -> Result<Sweep> {
 }
 
 /// Everything a single run needs besides the sequence.
-struct Ctx {
-    exe: PathBuf,
-    out: PathBuf,
-    timeout: Duration,
-    threads: Option<usize>,
-    quiet: bool,
+pub(crate) struct Ctx {
+    pub(crate) exe: PathBuf,
+    pub(crate) out: PathBuf,
+    pub(crate) timeout: Duration,
+    pub(crate) threads: Option<usize>,
+    pub(crate) quiet: bool,
 }
 
 /// `name` with every character other than ASCII letters, digits, '.', '_'
@@ -234,7 +234,7 @@ fn evaluate_into(row: &mut RunRow, ctx: &Ctx, gt: &Path, dir: &Path, keyframes_o
 }
 
 /// Runs colslam once on `seq` as a measured subprocess.
-fn run_colslam(ctx: &Ctx, seq: &Sequence, setting: &str, extra: &[String], run: usize) -> RunRow {
+pub(crate) fn run_colslam(ctx: &Ctx, seq: &Sequence, setting: &str, extra: &[String], run: usize) -> RunRow {
     let rel = PathBuf::from("runs")
         .join(slug(&seq.name))
         .join(slug(&if setting.is_empty() { COLSLAM.to_string() } else { format!("{COLSLAM}-{setting}") }))
@@ -383,7 +383,7 @@ fn run_peer(ctx: &Ctx, env: &PeerEnv, seq: &Sequence, system: &str, script: &str
 
 /// Prepares a sequence: generates a synthetic one; `Err` holds the reason it
 /// cannot run.
-fn prepare(seq: &Sequence, quiet: bool) -> std::result::Result<(), (Status, String)> {
+pub(crate) fn prepare(seq: &Sequence, quiet: bool) -> std::result::Result<(), (Status, String)> {
     if let Some(opts) = &seq.synth {
         if !quiet {
             eprintln!("generating {} in {}", seq.name, seq.input.display());

@@ -128,3 +128,46 @@ fn bad_arguments_are_errors() {
         assert!(!String::from_utf8_lossy(&out.stderr).is_empty(), "{args:?} must say why");
     }
 }
+
+/// `colslam bench precision` on one tiny synthetic sequence: the keypoint
+/// localisation table (integer against sub-pixel), the final model's
+/// reprojection errors and track-length buckets, and the ATE, in both
+/// reports; flags after `--` reach the run.
+#[test]
+fn precision_report_on_a_tiny_synthetic_sequence() {
+    let tmp = tempfile::tempdir().expect("temp dir");
+    let out = tmp.path().join("precision");
+    let status = Command::new(env!("CARGO_BIN_EXE_colslam"))
+        .args(["-q", "bench", "precision", "--only", "synthetic-40", "--synthetic-size", "320x240"])
+        .args(["--pairs", "5", "--gap", "1", "--timeout", "300", "--out"])
+        .arg(&out)
+        .args(["--", "--max-frames", "30"])
+        .status()
+        .expect("run colslam bench precision");
+    assert!(status.success());
+    let md = std::fs::read_to_string(out.join("precision.md")).expect("precision.md");
+    let report: Value =
+        serde_json::from_slice(&std::fs::read(out.join("precision.json")).expect("precision.json")).unwrap();
+    assert_eq!(report["run_flags"], serde_json::json!(["--max-frames", "30"]));
+    let row = &report["rows"][0];
+    assert_eq!(row["sequence"], "synthetic-40");
+    assert_eq!(row["status"], "ok", "{row}");
+    for kind in ["keypoints_integer", "keypoints_subpixel"] {
+        let k = &row[kind];
+        assert_eq!(k["pairs"], 5);
+        assert!(k["inliers"].as_u64().unwrap() > 100, "{k}");
+        assert!(k["median_px"].as_f64().unwrap() > 0.0 && k["median_px"].as_f64().unwrap() < 2.0, "{k}");
+    }
+    let ate = row["ate_rmse_m"].as_f64().expect("ATE");
+    assert!(ate > 0.0 && ate < SYNTHETIC_ATE_BOUND, "ATE {ate}");
+    let model = &row["model"];
+    assert!(model["images"].as_u64().unwrap() >= 2, "{model}");
+    let (points, buckets) = (model["points"].as_u64().unwrap(), model["track_buckets"].as_array().unwrap());
+    assert_eq!(buckets.len(), 5);
+    assert_eq!(buckets.iter().map(|b| b.as_u64().unwrap()).sum::<u64>(), points, "every track has 2+ views");
+    let mean = model["mean_reprojection_px"].as_f64().unwrap();
+    let median = model["median_reprojection_px"].as_f64().unwrap();
+    assert!(median > 0.0 && median <= mean && mean < 4.0, "{model}");
+    assert!(md.contains("| synthetic-40 | sub-pixel |") && md.contains("| synthetic-40 | ok |"), "{md}");
+    assert!(md.contains("--max-frames 30"), "{md}");
+}

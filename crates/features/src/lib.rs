@@ -53,6 +53,7 @@ mod orb_pattern;
 mod pyramid;
 mod registry;
 mod simd;
+mod subpixel;
 mod types;
 
 pub use error::FeatureError;

@@ -7,7 +7,7 @@ use crate::options::{FeatureKind, FrontendOptions, MatcherKind};
 use colslam_camera::{Camera, PixelConvention};
 use colslam_features::{
     Descriptors, ExtractorOptions, FeatureError, FeatureExtractor, Features, Match, Matcher, MatcherOptions,
-    extractor_by_name, matcher_by_name,
+    OrbOptions, extractor_by_name, matcher_by_name,
 };
 use colslam_geometry::Vec2;
 use colslam_image::Image;
@@ -126,15 +126,24 @@ fn make_extractor(options: &FrontendOptions, num_features: usize) -> Result<Box<
             Ok(Box::new(XFeat::new(opts).map_err(FeatureError::from)?))
         }
         FeatureKind::Orb => {
-            let mut eo = ExtractorOptions::default();
-            eo.orb.n_features = num_features;
-            // ORB-SLAM's spread of keypoints over the image, not the
-            // features crate's default (the strongest corners, which match
-            // best pair by pair): tracking and geometry gain more from
-            // coverage (docs/history.md).
-            eo.orb.selection = colslam_features::Selection::Quadtree;
+            let eo = ExtractorOptions { orb: orb_options(options, num_features) };
             Ok(extractor_by_name("orb", &eo)?)
         }
+    }
+}
+
+/// The ORB options the pipeline extracts with (also used by the precision
+/// report of `colslam bench`, so it measures the keypoints a run uses).
+pub fn orb_options(options: &FrontendOptions, num_features: usize) -> OrbOptions {
+    OrbOptions {
+        n_features: num_features,
+        // ORB-SLAM's spread of keypoints over the image, not the features
+        // crate's default (the strongest corners, which match best pair by
+        // pair): tracking and geometry gain more from coverage
+        // (docs/history.md).
+        selection: colslam_features::Selection::Quadtree,
+        subpixel: options.subpixel_keypoints,
+        ..OrbOptions::default()
     }
 }
 

@@ -84,11 +84,25 @@ pub struct FrontendOptions {
     /// Lowe's ratio of the nearest-neighbour matcher, in (0, 1].
     #[cfg_attr(feature = "cli", arg(long, value_name = "RATIO", default_value_t = FrontendOptions::default().max_ratio))]
     pub max_ratio: f32,
+    /// Refine ORB keypoints to sub-pixel positions at their pyramid level.
+    ///
+    /// Off (default), a keypoint of level l sits on that level's pixel grid,
+    /// 1.2^l pixels apart at full resolution. On, the synthetic sequence gets
+    /// more accurate but the real ones less (docs/benchmarks.md).
+    #[cfg_attr(feature = "cli", arg(long, value_name = "BOOL", default_value_t = FrontendOptions::default().subpixel_keypoints, action = clap::ArgAction::Set))]
+    pub subpixel_keypoints: bool,
 }
 
 impl Default for FrontendOptions {
     fn default() -> Self {
-        Self { features: FeatureKind::Orb, matcher: MatcherKind::Nn, num_features: 0, max_hamming: 64, max_ratio: 0.9 }
+        Self {
+            features: FeatureKind::Orb,
+            matcher: MatcherKind::Nn,
+            num_features: 0,
+            max_hamming: 64,
+            max_ratio: 0.9,
+            subpixel_keypoints: false,
+        }
     }
 }
 

@@ -1,6 +1,7 @@
 //! `colslam bench`: benchmarks. With no kind, the sequence suite (the paper's
 //! tables, side by side with peers); `features`, `estimators` and `ba` time
-//! one layer against its peer (OpenCV, pycolmap, Ceres through pycolmap).
+//! one layer against its peer (OpenCV, pycolmap, Ceres through pycolmap);
+//! `scale` measures time and memory against the length of a video.
 //!
 //! This is an application crate of the colslam binary, so it uses anyhow like
 //! the binary: it is the binary's benchmark lab (reached as `colslam bench`,
@@ -12,6 +13,7 @@
 pub mod ba;
 pub mod estimators;
 pub mod features;
+pub mod scale;
 pub mod stdout;
 pub mod suite;
 
@@ -37,6 +39,10 @@ pub enum BenchKind {
     Estimators(estimators::Args),
     /// Bundle adjustment against Ceres (pycolmap).
     Ba(ba::Args),
+    /// Long videos: time and memory against the number of frames
+    /// (synthetic exploring and looping paths, a real sequence played
+    /// forward and back).
+    Scale(scale::Args),
 }
 
 /// Runs `bench`; `threads` is the binary's global `--threads` (`None`: all
@@ -46,6 +52,7 @@ pub fn run(args: &BenchArgs, quiet: bool, threads: Option<usize>) -> Result<()> 
         Some(BenchKind::Features(a)) => features::run(a, quiet),
         Some(BenchKind::Estimators(a)) => estimators::run(a, quiet),
         Some(BenchKind::Ba(a)) => ba::run(a, quiet, threads),
+        Some(BenchKind::Scale(a)) => scale::run(a, quiet, threads),
         None => suite::run(&args.suite, quiet, threads),
     }
 }

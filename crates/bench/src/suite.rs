@@ -15,7 +15,7 @@ use crate::stdout::outln;
 mod plot;
 mod report;
 mod runner;
-mod sequences;
+pub(crate) mod sequences;
 
 use anyhow::{Context, Result, bail};
 use colslam_testutil::{PeerPythonError, find_peer_python, find_upwards};
@@ -159,12 +159,12 @@ fn parse_sweep(s: &str) -> Result<Sweep> {
 }
 
 /// Everything a single run needs besides the sequence.
-struct Ctx {
-    exe: PathBuf,
-    out: PathBuf,
-    timeout: Duration,
-    threads: Option<usize>,
-    quiet: bool,
+pub(crate) struct Ctx {
+    pub(crate) exe: PathBuf,
+    pub(crate) out: PathBuf,
+    pub(crate) timeout: Duration,
+    pub(crate) threads: Option<usize>,
+    pub(crate) quiet: bool,
 }
 
 /// `name` with every character other than ASCII letters, digits, '.', '_'
@@ -177,15 +177,15 @@ fn rel_string(p: &Path) -> String {
     p.to_string_lossy().replace('\\', "/")
 }
 
-fn json_f64(v: &Value, key: &str) -> Option<f64> {
+pub(crate) fn json_f64(v: &Value, key: &str) -> Option<f64> {
     v.get(key).and_then(Value::as_f64)
 }
 
-fn json_usize(v: &Value, key: &str) -> Option<usize> {
+pub(crate) fn json_usize(v: &Value, key: &str) -> Option<usize> {
     v.get(key).and_then(Value::as_u64).and_then(|x| usize::try_from(x).ok())
 }
 
-fn fresh_dir(dir: &Path) -> Result<()> {
+pub(crate) fn fresh_dir(dir: &Path) -> Result<()> {
     if dir.exists() {
         std::fs::remove_dir_all(dir).with_context(|| format!("clearing {}", dir.display()))?;
     }
@@ -234,7 +234,7 @@ fn evaluate_into(row: &mut RunRow, ctx: &Ctx, gt: &Path, dir: &Path, keyframes_o
 }
 
 /// Runs colslam once on `seq` as a measured subprocess.
-fn run_colslam(ctx: &Ctx, seq: &Sequence, setting: &str, extra: &[String], run: usize) -> RunRow {
+pub(crate) fn run_colslam(ctx: &Ctx, seq: &Sequence, setting: &str, extra: &[String], run: usize) -> RunRow {
     let rel = PathBuf::from("runs")
         .join(slug(&seq.name))
         .join(slug(&if setting.is_empty() { COLSLAM.to_string() } else { format!("{COLSLAM}-{setting}") }))

@@ -3,6 +3,7 @@
 //! one layer against its peer (OpenCV, pycolmap, Ceres through pycolmap);
 //! `precision` reports keypoint localisation, reprojection error, track
 //! lengths and ATE per sequence (issue 14).
+//! `scale` measures time and memory against the length of a video.
 //!
 //! This is an application crate of the colslam binary, so it uses anyhow like
 //! the binary: it is the binary's benchmark lab (reached as `colslam bench`,
@@ -15,6 +16,7 @@ pub mod ba;
 pub mod estimators;
 pub mod features;
 pub mod precision;
+pub mod scale;
 pub mod stdout;
 pub mod suite;
 
@@ -43,6 +45,10 @@ pub enum BenchKind {
     /// Precision report: keypoint localisation error (synthetic ground
     /// truth), reprojection error, track lengths and ATE per sequence.
     Precision(precision::Args),
+    /// Long videos: time and memory against the number of frames
+    /// (synthetic exploring and looping paths, a real sequence played
+    /// forward and back).
+    Scale(scale::Args),
 }
 
 /// Runs `bench`; `threads` is the binary's global `--threads` (`None`: all
@@ -53,6 +59,7 @@ pub fn run(args: &BenchArgs, quiet: bool, threads: Option<usize>) -> Result<()> 
         Some(BenchKind::Estimators(a)) => estimators::run(a, quiet),
         Some(BenchKind::Ba(a)) => ba::run(a, quiet, threads),
         Some(BenchKind::Precision(a)) => precision::run(a, quiet, threads),
+        Some(BenchKind::Scale(a)) => scale::run(a, quiet, threads),
         None => suite::run(&args.suite, quiet, threads),
     }
 }

@@ -177,15 +177,15 @@ fn rel_string(p: &Path) -> String {
     p.to_string_lossy().replace('\\', "/")
 }
 
-fn json_f64(v: &Value, key: &str) -> Option<f64> {
+pub(crate) fn json_f64(v: &Value, key: &str) -> Option<f64> {
     v.get(key).and_then(Value::as_f64)
 }
 
-fn json_usize(v: &Value, key: &str) -> Option<usize> {
+pub(crate) fn json_usize(v: &Value, key: &str) -> Option<usize> {
     v.get(key).and_then(Value::as_u64).and_then(|x| usize::try_from(x).ok())
 }
 
-fn fresh_dir(dir: &Path) -> Result<()> {
+pub(crate) fn fresh_dir(dir: &Path) -> Result<()> {
     if dir.exists() {
         std::fs::remove_dir_all(dir).with_context(|| format!("clearing {}", dir.display()))?;
     }

@@ -73,21 +73,37 @@ impl FrameData {
 }
 
 /// One 2D observation of a non-keyframe, linked to a keyframe keypoint.
-#[derive(Debug, Clone, Copy)]
+///
+/// Compact (20 bytes), since every non-keyframe's record is held until the
+/// final localisation: the position is kept as the extractor's `f32`
+/// keypoint and the normalised coordinates are derived again from it with
+/// the map's camera when they are used ([`FrameRecord::normalized`]), so
+/// they always follow the final camera and are not stored twice.
+#[derive(Debug, Clone, Copy, PartialEq)]
 pub struct RecordObs {
     /// Keypoint index in the frame.
     pub frame_kp: u32,
-    /// Its position, pixels (COLMAP convention).
-    pub pixel: Vec2,
-    /// Its normalised coordinates (rolling-shutter compensated when that is
-    /// on).
-    pub normalized: Vec2,
-    /// Its normalised coordinates as measured.
-    pub measured: Vec2,
+    /// Keypoint position in OpenCV's pixel convention, as extracted.
+    keypoint: [f32; 2],
     /// The keyframe it matched.
     pub keyframe: ImageId,
     /// The keyframe keypoint it matched.
     pub keyframe_kp: u32,
+}
+
+impl RecordObs {
+    /// An observation at `pixel` (COLMAP convention). The frontend's pixels
+    /// are an `f32` keypoint plus 0.5 computed in `f64`
+    /// ([`crate::frontend`]), so subtracting 0.5 and narrowing to `f32` gives
+    /// the keypoint back exactly and [`Self::pixel`] the same pixel.
+    pub fn new(frame_kp: u32, pixel: Vec2, keyframe: ImageId, keyframe_kp: u32) -> Self {
+        Self { frame_kp, keypoint: [(pixel.x - 0.5) as f32, (pixel.y - 0.5) as f32], keyframe, keyframe_kp }
+    }
+
+    /// Its position, pixels (COLMAP convention).
+    pub fn pixel(&self) -> Vec2 {
+        Vec2::new(f64::from(self.keypoint[0]) + 0.5, f64::from(self.keypoint[1]) + 0.5)
+    }
 }
 
 /// A non-keyframe to localise against the final map.
@@ -97,6 +113,10 @@ pub struct FrameRecord {
     pub frame: FrameId,
     /// Matches to keyframes.
     pub obs: Vec<RecordObs>,
+    /// Rolling-shutter compensated normalised coordinates, one per
+    /// observation, once compensation ran (`Mapper::compensate_rolling_shutter`);
+    /// empty before, when they are derived from the pixels.
+    pub compensated: Vec<Vec2>,
     /// Became a keyframe later (not localised from this record).
     pub promoted: bool,
 }
@@ -104,36 +124,40 @@ pub struct FrameRecord {
 impl FrameRecord {
     /// A record with no observations yet.
     pub fn new(data: &FrameData) -> Self {
-        Self { frame: data.id.clone(), obs: Vec::new(), promoted: false }
+        Self { frame: data.id.clone(), obs: Vec::new(), compensated: Vec::new(), promoted: false }
     }
 
     /// Adds the matches of `data` (query) to keyframe `kf` (train).
     pub fn add_matches(&mut self, data: &FrameData, kf: ImageId, matches: &[Match]) {
         for m in matches {
-            if let (Some(n), Some(px)) = (data.normalized.get(m.query as usize), data.pixels.get(m.query as usize)) {
-                self.obs.push(RecordObs {
-                    frame_kp: m.query,
-                    pixel: *px,
-                    normalized: *n,
-                    measured: *n,
-                    keyframe: kf,
-                    keyframe_kp: m.train,
-                });
+            if let Some(px) = data.pixels.get(m.query as usize) {
+                self.obs.push(RecordObs::new(m.query, *px, kf, m.train));
             }
         }
     }
-}
 
-impl FrameRecord {
-    /// Recomputes the observations' normalised coordinates (as measured)
-    /// from their pixels with `camera` ([`FrameData::normalize_with`]).
-    pub fn normalize_with(&mut self, camera: &Camera) {
-        for o in &mut self.obs {
-            if let Some(v) = undistort(camera, &o.pixel) {
-                o.normalized = v;
-                o.measured = v;
-            }
+    /// The normalised coordinates of observation `k` as localisation uses
+    /// them: compensated for rolling shutter once that ran, else measured
+    /// (undistorted from its pixel with `camera`); `None` when the camera
+    /// cannot undistort it.
+    pub fn normalized(&self, k: usize, camera: &Camera) -> Option<Vec2> {
+        match self.compensated.get(k) {
+            Some(n) => n.iter().all(|v| v.is_finite()).then_some(*n),
+            None => undistort(camera, &self.obs.get(k)?.pixel()),
         }
+    }
+
+    /// Appends the observations of another record of the same frame.
+    pub fn extend(&mut self, other: &FrameRecord) {
+        // Compensation runs on whole maps after merging: both records are
+        // compensated or neither is; a mix falls back to the pixels.
+        if self.compensated.len() == self.obs.len() && other.compensated.len() == other.obs.len() {
+            self.compensated.extend_from_slice(&other.compensated);
+        } else {
+            self.compensated.clear();
+        }
+        self.obs.extend_from_slice(&other.obs);
+        self.promoted |= other.promoted;
     }
 }
 
@@ -181,8 +205,31 @@ pub(crate) mod tests {
         assert_eq!(r.obs.len(), 1, "the match of a missing keypoint is dropped");
         let o = r.obs[0];
         assert_eq!((o.frame_kp, o.keyframe, o.keyframe_kp), (1, ImageId(2), 7));
-        assert_eq!(o.normalized, o.measured);
-        assert_eq!(o.normalized, Vec2::new(-0.3, 0.4));
+        assert_eq!(o.pixel(), Vec2::new(f64::from(-0.8f32) + 0.5, f64::from(-0.1f32) + 0.5));
         assert!(!r.promoted);
+    }
+
+    #[test]
+    fn record_pixels_round_trip_exactly_and_are_compact() {
+        // The frontend's pixels: an f32 keypoint + 0.5 in f64.
+        for (x, y) in [(0.0f32, 0.0f32), (17.123_457, 639.999), (1234.567, 0.001), (3.0e-3, 8191.75)] {
+            let px = Vec2::new(f64::from(x) + 0.5, f64::from(y) + 0.5);
+            assert_eq!(RecordObs::new(0, px, ImageId(1), 0).pixel(), px);
+        }
+        assert_eq!(std::mem::size_of::<RecordObs>(), 20);
+    }
+
+    #[test]
+    fn record_normalised_coordinates_follow_the_camera_until_compensated() {
+        let cam = |f: f64| Camera::pinhole(640, 480, f, f, 320.0, 240.0);
+        let mut data = frame_data(0, vec![Vec2::new(420.5, 240.5)]);
+        data.pixels = vec![Vec2::new(420.5, 240.5)];
+        let mut r = FrameRecord::new(&data);
+        r.add_matches(&data, ImageId(1), &[Match { query: 0, train: 0, distance: 0.0 }]);
+        assert!((r.normalized(0, &cam(500.0)).unwrap().x - 0.201).abs() < 1e-12);
+        assert!((r.normalized(0, &cam(1000.0)).unwrap().x - 0.1005).abs() < 1e-12);
+        r.compensated = vec![Vec2::new(0.3, 0.0)];
+        assert_eq!(r.normalized(0, &cam(500.0)), Some(Vec2::new(0.3, 0.0)));
+        assert_eq!(r.normalized(1, &cam(500.0)), None);
     }
 }

@@ -46,7 +46,7 @@ pub mod render;
 pub mod scene;
 pub mod texture;
 
-pub use options::{Distortion, SynthError, SynthOptions, SynthReport};
+pub use options::{Distortion, PathShape, SynthError, SynthOptions, SynthReport};
 pub use output::generate;
 pub use path::Trajectory;
 pub use scene::{Aabb, Hit, Scene, SceneBox};

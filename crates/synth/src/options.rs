@@ -67,6 +67,24 @@ pub type Distortion = [f64; 4];
 /// unique any more.
 pub const MAX_DISTORTION_COEFF: f64 = 2.0;
 
+/// The shape of the camera path.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum PathShape {
+    /// An arc of at most half a turn around the central table, looking at
+    /// it (the default: never revisits its start).
+    #[default]
+    Arc,
+    /// Laps around the central table, looking at it: `path_length /
+    /// (2 pi orbit_radius)` laps, so later laps revisit mapped space (long
+    /// looping sequences).
+    Laps,
+    /// A straight line along the room's x axis, beside the table, looking
+    /// across the room at the +y wall: every stretch sees new wall (long
+    /// exploring sequences in a long room).
+    Line,
+}
+
 /// Options of the synthetic sequence. Every field has a documented default
 /// (see [`SynthOptions::default`]); call [`SynthOptions::validate`] (done by
 /// every entry point) before use.
@@ -117,6 +135,8 @@ pub struct SynthOptions {
     /// Length of the base camera path in metres (the jitter adds a little).
     /// Default 1.5.
     pub path_length: f64,
+    /// Shape of the camera path. Default [`PathShape::Arc`].
+    pub path: PathShape,
     /// Horizontal distance of the camera from the room centre (the path is an
     /// arc around the central table). Default 1.8.
     pub orbit_radius: f64,
@@ -146,6 +166,7 @@ impl Default for SynthOptions {
             texel_size: 0.005,
             clutter_boxes: 6,
             path_length: 1.5,
+            path: PathShape::Arc,
             orbit_radius: 1.8,
             camera_height: 1.4,
             jitter_position: 0.01,
@@ -168,6 +189,12 @@ pub const MIN_TEXEL_SIZE: f64 = 0.001;
 pub const MAX_TEXEL_SIZE: f64 = 0.1;
 /// Largest number of clutter boxes accepted.
 pub const MAX_CLUTTER_BOXES: usize = 64;
+/// Largest room edge accepted, in metres (a long exploring room; the texel
+/// budget bounds the memory).
+pub const MAX_ROOM_SIZE: f64 = 200.0;
+/// Distance the [`PathShape::Line`] keeps from each end wall, metres (the
+/// shelf and the tall cabinet stand there).
+pub const LINE_END_MARGIN: f64 = 1.0;
 /// Largest number of rays per frame (`width * height * supersample^2`); the
 /// ray table holds 16 bytes per ray.
 pub const MAX_RAYS: usize = 64 << 20;
@@ -246,11 +273,14 @@ impl SynthOptions {
         }
         for (i, (&v, &min)) in self.room_size.iter().zip(MIN_ROOM_SIZE.iter()).enumerate() {
             const NAMES: [&str; 3] = ["room_size[0] (x)", "room_size[1] (y)", "room_size[2] (z)"];
-            if !v.is_finite() || v < min || v > 100.0 {
+            if !v.is_finite() || v < min || v > MAX_ROOM_SIZE {
                 return Err(SynthError::InvalidOption {
                     name: "room_size",
                     value: format!("{:?}", self.room_size),
-                    reason: format!("{} = {v} must be in [{min}, 100] metres", NAMES.get(i).copied().unwrap_or("?")),
+                    reason: format!(
+                        "{} = {v} must be in [{min}, {MAX_ROOM_SIZE}] metres",
+                        NAMES.get(i).copied().unwrap_or("?")
+                    ),
                 });
             }
         }
@@ -297,11 +327,7 @@ impl SynthOptions {
         if self.camera_height < 0.3 || self.camera_height > self.room_size[2] - 0.3 {
             return Err(invalid("camera_height", self.camera_height, "must leave 0.3 m to the floor and the ceiling"));
         }
-        // The arc must stay below a full turn so that the path never revisits
-        // its start (the camera would otherwise look back at the same view).
-        if self.path_length / self.orbit_radius > std::f64::consts::PI {
-            return Err(invalid("path_length", self.path_length, "must be at most pi * orbit_radius (half a turn)"));
-        }
+        self.validate_path_length()?;
         check_finite_non_negative("jitter_position", self.jitter_position)?;
         if self.jitter_position > 0.1 {
             return Err(invalid("jitter_position", self.jitter_position, "must be at most 0.1 m"));
@@ -311,6 +337,29 @@ impl SynthOptions {
             return Err(invalid("jitter_rotation_deg", self.jitter_rotation_deg, "must be at most 10 degrees"));
         }
         Ok(())
+    }
+}
+
+impl SynthOptions {
+    /// The path length against the path's shape.
+    fn validate_path_length(&self) -> Result<(), SynthError> {
+        match self.path {
+            // The arc must stay below a full turn so that the path never
+            // revisits its start (the camera would otherwise look back at
+            // the same view).
+            PathShape::Arc if self.path_length / self.orbit_radius > std::f64::consts::PI => {
+                Err(invalid("path_length", self.path_length, "must be at most pi * orbit_radius (half a turn)"))
+            }
+            PathShape::Line if self.path_length > self.room_size[0] - 2.0 * LINE_END_MARGIN => Err(invalid(
+                "path_length",
+                self.path_length,
+                &format!(
+                    "a line path must leave {LINE_END_MARGIN} m to each end wall: at most room_size[0] - {}",
+                    2.0 * LINE_END_MARGIN
+                ),
+            )),
+            _ => Ok(()),
+        }
     }
 }
 

@@ -1,6 +1,7 @@
-//! The hand-held-like camera path: an arc around the central table, looking
-//! at a smoothly wandering point on the table, with sum-of-sines jitter in
-//! position and orientation.
+//! The hand-held-like camera path: an arc (or laps) around the central
+//! table, looking at a smoothly wandering point on the table, or a line
+//! along the room looking across it ([`PathShape`]), with sum-of-sines
+//! jitter in position and orientation.
 //!
 //! The base path is a function of the normalised progress `s = t / T`
 //! (`T` = time of the last frame), the jitter a function of the time `t` in
@@ -10,7 +11,7 @@
 use colslam_geometry::{Mat3, Quat, Rigid3, SplitMix64, Vec3};
 use std::f64::consts::{PI, TAU};
 
-use crate::options::SynthOptions;
+use crate::options::{PathShape, SynthOptions};
 
 /// Sine components per jitter axis.
 const JITTER_COMPONENTS: usize = 3;
@@ -26,6 +27,11 @@ const HEIGHT_WOBBLE: f64 = 0.1;
 const TARGET_WANDER: f64 = 0.3;
 /// Height of the looked-at point (a little above the table top), metres.
 const TARGET_HEIGHT: f64 = 0.85;
+/// Where a [`PathShape::Line`] runs: this fraction of the room's width on
+/// the -y side of its centre line (clear of the table and the cabinets).
+const LINE_OFFSET: f64 = 0.25;
+/// How far across the room a [`PathShape::Line`] camera looks, metres.
+const LINE_LOOK_DISTANCE: f64 = 2.5;
 
 /// One jittered scalar: a sum of sines.
 #[derive(Debug, Clone)]
@@ -58,6 +64,11 @@ impl SumOfSines {
 /// The camera trajectory, deterministic from the seed.
 #[derive(Debug, Clone)]
 pub struct Trajectory {
+    shape: PathShape,
+    /// Path length (line) in metres.
+    length: f64,
+    /// y of the line path.
+    line_y: f64,
     duration: f64,
     radius: f64,
     height: f64,
@@ -83,6 +94,9 @@ impl Trajectory {
         let direction = if rng.below(2) == 0 { 1.0 } else { -1.0 };
         let rot_amp = opts.jitter_rotation_deg.to_radians();
         Self {
+            shape: opts.path,
+            length: opts.path_length,
+            line_y: -LINE_OFFSET * opts.room_size[1],
             duration,
             radius: opts.orbit_radius,
             height: opts.camera_height,
@@ -103,27 +117,47 @@ impl Trajectory {
         self.duration
     }
 
-    /// Camera centre at time `t` (seconds), world coordinates.
-    pub fn center(&self, t: f64) -> Vec3 {
+    /// Camera centre at time `t` (seconds) without the jitter.
+    fn base_center(&self, t: f64) -> Vec3 {
         let s = t / self.duration;
         // Progress with a varying speed; d/ds = 1 + 2 pi w cos(.) > 0 since
         // 2 pi w < 1, so the camera never stops (no pure rotation).
         let p = s + PROGRESS_WOBBLE * ((TAU * s + self.phase_progress).sin() - self.phase_progress.sin());
-        let theta = self.theta0 + self.sweep * (p - 0.5);
-        let r = self.radius + RADIAL_WOBBLE * (PI * s + self.phase_radius).sin();
+        let wobble = RADIAL_WOBBLE * (PI * s + self.phase_radius).sin();
         let h = self.height + HEIGHT_WOBBLE * (TAU * 0.7 * s + self.phase_height).sin();
+        match self.shape {
+            PathShape::Arc | PathShape::Laps => {
+                let theta = self.theta0 + self.sweep * (p - 0.5);
+                let r = self.radius + wobble;
+                Vec3::new(r * theta.cos(), r * theta.sin(), h)
+            }
+            PathShape::Line => Vec3::new(self.length * (p - 0.5), self.line_y + wobble, h),
+        }
+    }
+
+    /// Camera centre at time `t` (seconds), world coordinates.
+    pub fn center(&self, t: f64) -> Vec3 {
         let j = Vec3::new(
             self.position_jitter[0].eval(t),
             self.position_jitter[1].eval(t),
             self.position_jitter[2].eval(t),
         );
-        Vec3::new(r * theta.cos(), r * theta.sin(), h) + j
+        self.base_center(t) + j
     }
 
     /// The looked-at point at time `t`.
     pub fn target(&self, t: f64) -> Vec3 {
         let s = t / self.duration;
         let a = self.phase_target + self.target_turn * s;
+        if self.shape == PathShape::Line {
+            // Across the room, wandering along it and in height.
+            let c = self.base_center(t);
+            return Vec3::new(
+                c.x + TARGET_WANDER * a.cos(),
+                c.y + LINE_LOOK_DISTANCE,
+                TARGET_HEIGHT + 0.3 * (TAU * 0.5 * s + self.phase_target).sin(),
+            );
+        }
         Vec3::new(
             TARGET_WANDER * a.cos(),
             TARGET_WANDER * 0.6 * a.sin(),
@@ -137,7 +171,8 @@ impl Trajectory {
         let z = (self.target(t) - c).normalize();
         let up = Vec3::new(0.0, 0.0, 1.0);
         // The target is always well below the horizon-to-zenith range (it is
-        // on the table, the camera above it at >= 1 m horizontal distance), so
+        // on the table, the camera above it at >= 1 m horizontal distance, or
+        // 2.5 m across the room from a line path), so
         // z is never parallel to up.
         let x = z.cross(&up).normalize();
         let y = z.cross(&x);

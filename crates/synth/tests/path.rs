@@ -3,7 +3,7 @@
 mod common;
 
 use colslam_geometry::{Vec2, Vec3};
-use colslam_synth::{SynthOptions, SyntheticSequence, Trajectory};
+use colslam_synth::{PathShape, SynthOptions, SyntheticSequence, Trajectory};
 
 /// Largest linear acceleration accepted (m/s^2): brisk hand-held motion.
 const MAX_ACCEL: f64 = 3.0;
@@ -123,4 +123,44 @@ fn any_seed_gives_a_collision_free_path() {
         }
     }
     assert!(refused > 0, "no crowded configuration was refused");
+}
+
+/// The long shapes of `colslam bench scale`: laps come back to their start
+/// (a looping sequence), a line never does and its frames see new wall.
+#[test]
+fn laps_revisit_and_lines_explore() {
+    let base = SynthOptions { texel_size: 0.05, width: 32, height: 24, focal: 26.0, ..SynthOptions::default() };
+    let lap = std::f64::consts::TAU * base.orbit_radius;
+    // Two laps over 240 frames: around frame 120 (the speed varies) the
+    // camera is back where frame 0 was.
+    let laps = SynthOptions { path: PathShape::Laps, frames: 241, path_length: 2.0 * lap, ..base.clone() };
+    let seq = SyntheticSequence::new(&laps).unwrap();
+    let p = seq.world_from_cam();
+    let back = p[90..150].iter().map(|q| (q.translation - p[0].translation).norm()).fold(f64::INFINITY, f64::min);
+    let across = (p[60].translation - p[0].translation).norm();
+    assert!(back < 0.5 && across > 2.5, "lap returns {back} m from its start, half a lap {across} m");
+    // The default arc refuses laps.
+    let arc = SynthOptions { path: PathShape::Arc, ..laps };
+    assert!(SyntheticSequence::new(&arc).unwrap_err().to_string().contains("half a turn"));
+
+    // A 20 m line in a 23 m room: it moves along x by its length, keeps
+    // clear of everything, and its last frame sees none of the first's wall.
+    let line = SynthOptions {
+        path: PathShape::Line,
+        frames: 200,
+        path_length: 20.0,
+        room_size: [23.0, 5.0, 2.8],
+        clutter_boxes: 30,
+        ..base.clone()
+    };
+    let seq = SyntheticSequence::new(&line).unwrap();
+    let p = seq.world_from_cam();
+    let dx = p[199].translation.x - p[0].translation.x;
+    assert!((19.0..21.5).contains(&dx.abs()), "line moved {dx} m along x");
+    let first = seq.visible_points(0, 50, 1).unwrap();
+    let seen_at_end = first.iter().filter(|s| seq.observe(199, &s.world).unwrap().is_some()).count();
+    assert_eq!(seen_at_end, 0, "the last frame sees the first frame's points");
+    // A line longer than the room allows is refused by name.
+    let long = SynthOptions { path_length: 22.0, ..line };
+    assert!(SyntheticSequence::new(&long).unwrap_err().to_string().contains("path_length"));
 }

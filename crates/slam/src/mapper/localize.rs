@@ -6,11 +6,13 @@ use super::state::Mapper;
 use crate::frame::{FramePose, FrameRecord};
 use crate::options::{GlobalBaTolerance, SlamOptions};
 use crate::timing::{Stage, StageTimings};
+use colslam_camera::Camera;
 use colslam_estimators::estimate_absolute_pose;
 use colslam_geometry::{Vec2, Vec3};
 use colslam_scene::{Image, ImageId, Point3DId, TrackElement};
 use colslam_sfm::SfmError;
 use rayon::prelude::*;
+use std::borrow::Cow;
 use std::collections::{HashMap, HashSet};
 
 /// A localised frame's PnP inliers: (normalised keypoint, 3D point).
@@ -29,19 +31,18 @@ pub struct Localization {
 
 /// One record per frame: a frame can hold several (tracked by two maps that
 /// were merged, tracked backwards and relocalised), whose observations are
-/// pooled; a frame promoted anywhere is a keyframe.
-pub(crate) fn pool_records(records: &[FrameRecord]) -> Vec<FrameRecord> {
-    let mut merged: Vec<FrameRecord> = Vec::new();
+/// pooled; a frame promoted anywhere is a keyframe. A frame with one record
+/// borrows it: copying every record would double their memory at the end
+/// of the run, where it peaks.
+pub(crate) fn pool_records(records: &[FrameRecord]) -> Vec<Cow<'_, FrameRecord>> {
+    let mut merged: Vec<Cow<'_, FrameRecord>> = Vec::new();
     let mut slot: HashMap<usize, usize> = HashMap::new();
     for r in records {
         match slot.get(&r.frame.index) {
-            Some(&k) => {
-                merged[k].obs.extend_from_slice(&r.obs);
-                merged[k].promoted |= r.promoted;
-            }
+            Some(&k) => merged[k].to_mut().extend(r),
             None => {
                 slot.insert(r.frame.index, merged.len());
-                merged.push(r.clone());
+                merged.push(Cow::Borrowed(r));
             }
         }
     }
@@ -68,6 +69,7 @@ impl Mapper {
     /// order, and the records that could not be localised.
     pub fn localize_all(&self, opts: &SlamOptions, timings: &mut StageTimings) -> Result<Localization, SfmError> {
         let focal = self.focal()?;
+        let camera = self.camera()?;
         let mut poses = self.keyframe_poses();
         let keyframe_frames: HashSet<usize> = poses.iter().map(|p| p.frame.index).collect();
         let started = std::time::Instant::now();
@@ -78,7 +80,7 @@ impl Mapper {
             .filter(|(_, r)| {
                 !r.promoted && !keyframe_frames.contains(&r.frame.index) && opts.refine.localize_all_frames
             })
-            .map(|(i, r)| (i, self.localize(r, focal, opts)))
+            .map(|(i, r)| (i, self.localize(r, camera, focal, opts)))
             .collect();
         timings.add(Stage::Localization, started.elapsed());
         let mut out = Localization::default();
@@ -105,6 +107,7 @@ impl Mapper {
     pub(crate) fn localize(
         &self,
         record: &FrameRecord,
+        camera: &Camera,
         focal: f64,
         opts: &SlamOptions,
     ) -> Option<(FramePose, FrameInliers)> {
@@ -112,7 +115,7 @@ impl Mapper {
         let mut used_pt = HashSet::new();
         let (mut p2, mut p3): (Vec<Vec2>, Vec<Vec3>) = (Vec::new(), Vec::new());
         let mut pids = Vec::new();
-        for o in &record.obs {
+        for (k, o) in record.obs.iter().enumerate() {
             let Some(img) = self.rec.image(o.keyframe) else { continue };
             if !img.registered {
                 continue;
@@ -122,9 +125,10 @@ impl Mapper {
             if used_kp.contains(&o.frame_kp) || used_pt.contains(&pid) {
                 continue;
             }
+            let Some(n) = record.normalized(k, camera) else { continue };
             used_kp.insert(o.frame_kp);
             used_pt.insert(pid);
-            p2.push(o.normalized);
+            p2.push(n);
             p3.push(p.xyz);
             pids.push(pid);
         }

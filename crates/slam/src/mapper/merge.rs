@@ -214,6 +214,9 @@ impl Mapper {
         self.order_keyframes_by_time();
         for r in &source.records {
             let mut r = r.clone();
+            // Maps are joined before rolling-shutter compensation, which
+            // runs on the joined map: nothing compensated to carry.
+            r.compensated.clear();
             r.obs.retain_mut(|o| match image_map.get(&o.keyframe) {
                 Some(&id) => {
                     o.keyframe = id;

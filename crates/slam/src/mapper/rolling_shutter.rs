@@ -286,13 +286,22 @@ impl Mapper {
         let moved = self.move_keyframe_observations(velocities, readout)?;
         let camera = self.camera()?.clone();
         for r in &mut self.records {
-            let Some(w) = velocities.get(&r.frame.index) else { continue };
-            for o in &mut r.obs {
-                let px = camera.img_from_normalized(&o.measured);
-                if let Some((_, n)) = compensate(&camera, &px, w, readout) {
-                    o.normalized = n;
-                }
-            }
+            // Every record keeps its coordinates from here on, measured where
+            // it has no velocity: the global refinements below may change
+            // the camera, and the records must stay as compensated now.
+            let w = velocities.get(&r.frame.index);
+            r.compensated = r
+                .obs
+                .iter()
+                .map(|o| {
+                    // NaN: not undistortable, skipped by localisation.
+                    let Some(measured) = crate::frame::undistort(&camera, &o.pixel()) else {
+                        return Vec2::repeat(f64::NAN);
+                    };
+                    let px = camera.img_from_normalized(&measured);
+                    w.and_then(|w| compensate(&camera, &px, w, readout)).map_or(measured, |(_, n)| n)
+                })
+                .collect();
         }
         tracing::debug!(
             "map {}: rolling shutter ({:.1} ms readout): {moved} keyframe observations moved, {} frames with a velocity",

@@ -130,17 +130,11 @@ impl Mapper {
         Ok(())
     }
 
-    /// Brings every keyframe's and every record's normalised coordinates to
-    /// the map's current camera (after intrinsics were refined).
+    /// Brings every keyframe's normalised coordinates to the map's current
+    /// camera (after intrinsics were refined); records derive theirs from
+    /// their pixels when used ([`FrameRecord::normalized`]).
     pub fn refresh_all(&mut self) -> Result<(), SceneError> {
-        self.refresh_keyframes(0..self.keyframes.len())?;
-        if self.intrinsics_version > 0 {
-            let camera = self.camera()?.clone();
-            for r in &mut self.records {
-                r.normalize_with(&camera);
-            }
-        }
-        Ok(())
+        self.refresh_keyframes(0..self.keyframes.len())
     }
 
     /// Registered keyframes, in the current order (frame order outside a
@@ -182,7 +176,7 @@ impl Mapper {
             self.records.iter().enumerate().map(|(i, r)| (r.frame.index, i)).collect();
         for r in extra {
             match by_index.get(&r.frame.index) {
-                Some(&i) => self.records[i].obs.extend(r.obs),
+                Some(&i) => self.records[i].extend(&r),
                 None => {
                     by_index.insert(r.frame.index, self.records.len());
                     self.records.push(r);

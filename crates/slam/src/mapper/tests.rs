@@ -32,6 +32,8 @@ const STEP: f64 = 0.25;
 /// Agreement with the truth after the gauge is accounted for (world units
 /// and radians).
 const EXACT: f64 = 1e-6;
+/// Tolerance of a map refined with records, whose pixels are f32 keypoints.
+const RECORD_ROUNDING_TOL: f64 = 1e-5;
 
 /// A synthetic sequence: known poses, known points, and each frame's
 /// keypoints.
@@ -284,6 +286,11 @@ impl Scene {
     /// points, and every point and registered keyframe against the truth
     /// after the gauge; returns the gauge.
     fn assert_exact(&self, map: &Mapper) -> Sim3 {
+        self.assert_within(map, EXACT)
+    }
+
+    /// [`Self::assert_exact`] with tolerance `tol`.
+    fn assert_within(&self, map: &Mapper, tol: f64) -> Sim3 {
         map.rec.check_consistency().unwrap();
         for (pid, p) in map.rec.points3d() {
             let unregistered = p.track.iter().find(|e| !map.rec.image(e.image_id).is_some_and(|i| i.registered));
@@ -292,13 +299,13 @@ impl Scene {
         let g = self.gauge(map);
         for (pid, t) in self.point_truths(map) {
             let err = (g.transform_point(&self.points[t]) - map.rec.point3d(pid).unwrap().xyz).norm() / g.scale;
-            assert!(err < EXACT, "point {pid:?} (scene point {t}) is {err:e} off");
+            assert!(err < tol, "point {pid:?} (scene point {t}) is {err:e} off");
         }
         for k in &map.keyframes {
             let img = map.rec.image(k.image_id).unwrap();
             if img.registered {
                 let err = pose_error(&g, &img.cam_from_world, &self.poses[k.data.index()]);
-                assert!(err < EXACT, "keyframe of frame {} is {err:e} off", k.data.index());
+                assert!(err < tol, "keyframe of frame {} is {err:e} off", k.data.index());
             }
         }
         g
@@ -1195,11 +1202,11 @@ fn localization_ignores_deregistered_keyframes() {
     let scene = Scene::translating(9);
     let mut map = scene.exact_map(0, &[0, 2, 4, 6, 8]);
     let r = record(&scene, &map, 7, &[8]);
-    assert!(map.localize(&r, 500.0, &opts()).is_some());
+    assert!(map.localize(&r, &map.camera().unwrap().clone(), 500.0, &opts()).is_some());
     map.deregister(image_of(&map, 8)).unwrap();
-    assert!(map.localize(&r, 500.0, &opts()).is_none());
+    assert!(map.localize(&r, &map.camera().unwrap().clone(), 500.0, &opts()).is_none());
     let r = record(&scene, &map, 7, &[6, 8]);
-    let (pose, _) = map.localize(&r, 500.0, &opts()).expect("through frame 6");
+    let (pose, _) = map.localize(&r, &map.camera().unwrap().clone(), 500.0, &opts()).expect("through frame 6");
     assert!(pose_error(&Sim3::identity(), &pose.cam_from_world, &scene.poses[7]) < EXACT);
 }
 
@@ -1219,22 +1226,25 @@ fn refine_with_all_frames_adds_the_localized_frames() {
         assert!(img.registered);
         assert_eq!(img.num_points3d(), loc.inliers[&f].len());
     }
-    // Poses are read back in the refined (normalised) map's gauge.
-    let g = scene.assert_exact(&map);
+    // Poses are read back in the refined (normalised) map's gauge. Records
+    // keep the extractor's f32 keypoints, so the exact scene's pixels of the
+    // added frames are rounded by up to 3e-5 px: not exact any more.
+    let g = scene.assert_within(&map, RECORD_ROUNDING_TOL);
     for p in &poses {
-        assert!(pose_error(&g, &p.cam_from_world, &scene.poses[p.frame.index]) < EXACT, "frame {}", p.frame.index);
+        let err = pose_error(&g, &p.cam_from_world, &scene.poses[p.frame.index]);
+        assert!(err < RECORD_ROUNDING_TOL, "frame {}", p.frame.index);
     }
 }
 
 fn obs(frame_kp: u32) -> RecordObs {
-    let n = Vec2::new(0.1, 0.2);
-    RecordObs { frame_kp, pixel: n, normalized: n, measured: n, keyframe: ImageId(1), keyframe_kp: frame_kp }
+    RecordObs::new(frame_kp, Vec2::new(100.5, 200.5), ImageId(1), frame_kp)
 }
 
 fn bare_record(index: usize, kps: &[u32], promoted: bool) -> FrameRecord {
     FrameRecord {
         frame: FrameId { index, timestamp: 0.0, name: format!("{index}") },
         obs: kps.iter().map(|&k| obs(k)).collect(),
+        compensated: Vec::new(),
         promoted,
     }
 }
@@ -1257,6 +1267,8 @@ fn pool_records_pools_observations_of_a_frame_and_keeps_promoted() {
     assert!(pooled[0].promoted, "promoted anywhere is promoted");
     assert_eq!(obs_kps(&pooled[1]), vec![7]);
     assert!(!pooled[1].promoted);
+    // A frame with one record is not copied (the records' memory peaks here).
+    assert!(matches!(pooled[1], std::borrow::Cow::Borrowed(_)));
 }
 
 #[test]

@@ -226,6 +226,44 @@ fn create_dir(dir: &Path) -> Result<(), SlamError> {
     std::fs::create_dir_all(dir).map_err(|source| SlamError::Io { path: dir.to_path_buf(), source })
 }
 
+/// Writes the camera the run ended with (refined when intrinsics were) as
+/// `camera.yaml`, a camera file that `--camera` reads back (OpenCV's pixel
+/// convention); nothing without a map.
+fn write_camera_file(result: &SlamResult, out: &Path) -> Result<(), SlamError> {
+    let Some(camera) = result.maps.first().and_then(|m| m.map.camera().ok()) else {
+        return Ok(());
+    };
+    let opencv = camera.convert_pixel_convention(PixelConvention::Colmap, PixelConvention::OpenCv);
+    let path = out.join("camera.yaml");
+    colslam_image::write_atomic(&path, to_yaml_string(&opencv).as_bytes())
+        .map_err(|source| SlamError::Io { path, source })
+}
+
+/// The report's camera: the first map's (empty without a map) and the
+/// readout its rolling-shutter compensation used.
+fn camera_summary(result: &SlamResult, opts: &SlamOptions) -> CameraSummary {
+    let first = result.maps.first();
+    let empty = CameraSummary {
+        model: String::new(),
+        width: 0,
+        height: 0,
+        params: Vec::new(),
+        readout_s: 0.0,
+        readout_estimated: false,
+    };
+    let Some((map, camera)) = first.and_then(|m| m.map.camera().ok().map(|c| (m, c))) else {
+        return empty;
+    };
+    CameraSummary {
+        model: camera.model.name().to_string(),
+        width: camera.width,
+        height: camera.height,
+        params: camera.params.clone(),
+        readout_s: map.readout_s,
+        readout_estimated: opts.refine.rolling_shutter == crate::options::RollingShutter::Auto,
+    }
+}
+
 /// Writes every output of `result` but the report into the folder `out`
 /// (the staging folder of [`begin_run_output`]) and returns the report
 /// (without wall time, stop and evaluation, which the driver fills in
@@ -255,36 +293,10 @@ pub fn write_outputs(
         Trajectory::default().write_tum(&out.join("trajectory.tum"))?;
         Trajectory::default().write_tum(&out.join("keyframes.tum"))?;
     }
-    if let Some(camera) = result.maps.first().and_then(|m| m.map.camera().ok()) {
-        // The camera the run ended with (refined when intrinsics were), as a
-        // camera file that `--camera` reads back: OpenCV's pixel convention.
-        let opencv = camera.convert_pixel_convention(PixelConvention::Colmap, PixelConvention::OpenCv);
-        let path = out.join("camera.yaml");
-        colslam_image::write_atomic(&path, to_yaml_string(&opencv).as_bytes())
-            .map_err(|source| SlamError::Io { path, source })?;
-    }
+    write_camera_file(result, out)?;
     let maps: Vec<MapSummary> = result.maps.iter().map(summarize).collect();
     let first = maps.first();
-    let camera = result
-        .maps
-        .first()
-        .and_then(|m| m.map.camera().ok())
-        .map(|c| CameraSummary {
-            model: c.model.name().to_string(),
-            width: c.width,
-            height: c.height,
-            params: c.params.clone(),
-            readout_s: result.maps.first().map_or(0.0, |m| m.readout_s),
-            readout_estimated: opts.refine.rolling_shutter == crate::options::RollingShutter::Auto,
-        })
-        .unwrap_or(CameraSummary {
-            model: String::new(),
-            width: 0,
-            height: 0,
-            params: Vec::new(),
-            readout_s: 0.0,
-            readout_estimated: false,
-        });
+    let camera = camera_summary(result, opts);
     let frames = result.frames.len();
     let localized = first.map_or(0, |m| m.localized_frames);
     Ok(RunReport {

@@ -254,7 +254,7 @@ pub struct MapperOptions {
     /// Keyframes in a local bundle adjustment, at least 2: the new one and its most connected (paper 3.6).
     #[cfg_attr(feature = "cli", arg(long, value_name = "N", default_value_t = MapperOptions::default().local_ba_images))]
     pub local_ba_images: usize,
-    /// Local BA over the covisible keyframes instead (0: off): every keyframe sharing at least N points with the new one.
+    /// Local BA over the keyframes sharing at least N points with the new one instead (0: off).
     ///
     /// ORB-SLAM's local BA (its covisibility graph links keyframes sharing
     /// 15 points); the keyframes that observe those points beyond them stay

@@ -27,6 +27,9 @@
 //!   `distortion_model: radial-tangential | equidistant | none` and
 //!   `distortion_coefficients: [..]`; `rate_hz` is ignored.
 //! * `fps` is reported if present.
+//! * `readout_s`: the rolling-shutter readout time in seconds (first row to
+//!   last), in [0, 1); colslam writes it beside a run's outputs when the run
+//!   compensated one, so the file reproduces the run.
 //!
 //! Every error names the file and the key (see [`CameraError::File`]).
 
@@ -56,6 +59,9 @@ pub struct CameraFile {
     pub format: CameraFileFormat,
     /// Frame rate, if the file gives `fps`.
     pub fps: Option<f64>,
+    /// Rolling-shutter readout time in seconds, if the file gives
+    /// `readout_s`.
+    pub readout_s: Option<f64>,
     /// Keys present in the file but not used (as written).
     pub unknown_keys: Vec<String>,
 }
@@ -117,6 +123,16 @@ pub fn to_yaml_string(cam: &Camera) -> String {
     s.push_str(&format!("height: {}\n", cam.height));
     for (name, v) in cam.model.param_name_list().zip(&cam.params) {
         s.push_str(&format!("{name}: {v:?}\n"));
+    }
+    s
+}
+
+/// [`to_yaml_string`] followed by the rolling-shutter readout time (the
+/// `readout_s` key) when one was compensated (`readout_s > 0`).
+pub fn to_yaml_string_with_readout(cam: &Camera, readout_s: f64) -> String {
+    let mut s = to_yaml_string(cam);
+    if readout_s > 0.0 {
+        s.push_str(&format!("readout_s: {readout_s:?}\n"));
     }
     s
 }
@@ -399,6 +415,16 @@ impl Parser {
             Some(e) => Some(self.number(&e)?),
             None => None,
         };
+        let readout_s = match self.raw("readout_s") {
+            Some(e) => {
+                let r = self.number(&e)?;
+                if !(0.0..1.0).contains(&r) {
+                    return Err(self.err(&e.key, format!("must be a readout time in seconds in [0, 1), got {r}")));
+                }
+                Some(r)
+            }
+            None => None,
+        };
 
         // PINHOLE plus non-zero distortion keys is a radial-tangential camera.
         let spec = if spec == ModelSpec::Colmap(CameraModelId::Pinhole) && !self.entries.contains_key("params") {
@@ -485,7 +511,7 @@ impl Parser {
         camera.validate().map_err(|e| file_error_from_validation(&self.path, e, &written))?;
         let unknown_keys =
             self.entries.iter().filter(|(k, _)| !self.used.contains(*k)).map(|(_, e)| e.key.clone()).collect();
-        Ok(CameraFile { camera, format: self.format, fps, unknown_keys })
+        Ok(CameraFile { camera, format: self.format, fps, readout_s, unknown_keys })
     }
 
     /// Parses `[a, b, c]` (or a bare comma/space separated list).

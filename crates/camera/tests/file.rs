@@ -263,3 +263,21 @@ fn euroc_kalibr_sensor_yaml() {
     );
     check_error(&equi.replace("equidistant", "omni"), "distortion_model", "unknown distortion model");
 }
+
+#[test]
+fn readout_time_round_trip_and_range() {
+    let dir = tempfile::tempdir().unwrap();
+    let cam = Camera::pinhole(640, 480, 500.0, 500.0, 320.0, 240.0);
+    // A run that compensated a readout writes it; the file gives it back.
+    let text = colslam_camera::file::to_yaml_string_with_readout(&cam, 0.0333);
+    let rep = read_camera_file_report(&write(dir.path(), "rs.yaml", &text)).unwrap();
+    assert_eq!((rep.camera, rep.readout_s), (cam.clone(), Some(0.0333)));
+    assert!(rep.unknown_keys.is_empty(), "{:?}", rep.unknown_keys);
+    // A global-shutter run writes no readout.
+    let text = colslam_camera::file::to_yaml_string_with_readout(&cam, 0.0);
+    assert!(!text.contains("readout"), "{text}");
+    let rep = read_camera_file_report(&write(dir.path(), "gs.yaml", &text)).unwrap();
+    assert_eq!(rep.readout_s, None);
+    check_error(&format!("{GOOD}readout_s: 1.5\n"), "readout_s", "[0, 1)");
+    check_error(&format!("{GOOD}readout_s: -0.01\n"), "readout_s", "[0, 1)");
+}

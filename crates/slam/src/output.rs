@@ -16,7 +16,7 @@ use crate::options::SlamOptions;
 use crate::pipeline::{MapResult, SlamResult};
 use crate::timing::StageTimings;
 use colslam_camera::PixelConvention;
-use colslam_camera::file::to_yaml_string;
+use colslam_camera::file::to_yaml_string_with_readout;
 use colslam_eval::trajectory::Trajectory;
 use colslam_image::OutputDir;
 use colslam_scene::{MODEL_FILE_NAMES, ModelFormat, write_model_files, write_ply};
@@ -226,17 +226,18 @@ fn create_dir(dir: &Path) -> Result<(), SlamError> {
     std::fs::create_dir_all(dir).map_err(|source| SlamError::Io { path: dir.to_path_buf(), source })
 }
 
-/// Writes the camera the run ended with (refined when intrinsics were) as
-/// `camera.yaml`, a camera file that `--camera` reads back (OpenCV's pixel
-/// convention); nothing without a map.
+/// Writes the camera the run ended with (refined when intrinsics were, with
+/// the readout its rolling-shutter compensation used) as `camera.yaml`, a
+/// camera file that `--camera` reads back (OpenCV's pixel convention);
+/// nothing without a map.
 fn write_camera_file(result: &SlamResult, out: &Path) -> Result<(), SlamError> {
-    let Some(camera) = result.maps.first().and_then(|m| m.map.camera().ok()) else {
+    let Some((map, camera)) = result.maps.first().and_then(|m| m.map.camera().ok().map(|c| (m, c))) else {
         return Ok(());
     };
     let opencv = camera.convert_pixel_convention(PixelConvention::Colmap, PixelConvention::OpenCv);
     let path = out.join("camera.yaml");
-    colslam_image::write_atomic(&path, to_yaml_string(&opencv).as_bytes())
-        .map_err(|source| SlamError::Io { path, source })
+    let text = to_yaml_string_with_readout(&opencv, map.readout_s);
+    colslam_image::write_atomic(&path, text.as_bytes()).map_err(|source| SlamError::Io { path, source })
 }
 
 /// The report's camera: the first map's (empty without a map) and the

@@ -241,6 +241,8 @@ pub struct ResolvedCamera {
     pub camera: Camera,
     /// Where it came from.
     pub source: CameraSource,
+    /// The rolling-shutter readout time a camera file gives (`readout_s`).
+    pub readout_s: Option<f64>,
 }
 
 impl CameraSource {
@@ -267,23 +269,26 @@ pub fn resolve_camera(
     source: &dyn FrameSource,
 ) -> Result<ResolvedCamera, SlamError> {
     if let Some(path) = &opts.camera {
-        let camera = colslam_camera::file::read_camera_file(path)?;
+        let file = colslam_camera::file::read_camera_file_report(path)?;
         tracing::info!("camera from {}", path.display());
-        return Ok(ResolvedCamera { camera, source: CameraSource::File { path: path.clone() } });
+        let source = CameraSource::File { path: path.clone() };
+        return Ok(ResolvedCamera { camera: file.camera, source, readout_s: file.readout_s });
     }
     if let Some(name) = &opts.preset {
         tracing::info!("camera from the preset {name}");
         return Ok(ResolvedCamera {
             camera: preset_camera(name)?,
             source: CameraSource::Preset { name: name.clone() },
+            readout_s: None,
         });
     }
     if opts.focal.is_none()
         && let Some(path) = source.camera_file()
     {
-        let camera = colslam_camera::file::read_camera_file(&path)?;
+        let file = colslam_camera::file::read_camera_file_report(&path)?;
         tracing::info!("camera from {}", path.display());
-        return Ok(ResolvedCamera { camera, source: CameraSource::BesideInput { path } });
+        let source = CameraSource::BesideInput { path };
+        return Ok(ResolvedCamera { camera: file.camera, source, readout_s: file.readout_s });
     }
     let Some((w, h)) = source.image_size() else {
         let reason = "cannot tell the image size; give --camera or --preset".to_string();
@@ -307,6 +312,7 @@ pub fn resolve_camera(
         return Ok(ResolvedCamera {
             camera: centred(f),
             source: CameraSource::Exif { path: path.to_path_buf(), tags: tags.into() },
+            readout_s: None,
         });
     }
     let guessed = opts.focal.is_none();
@@ -320,7 +326,8 @@ pub fn resolve_camera(
     } else {
         tracing::info!("camera: focal {f:.1} px as given, principal point at the centre");
     }
-    Ok(ResolvedCamera { camera, source: if guessed { CameraSource::Guessed } else { CameraSource::Focal } })
+    let source = if guessed { CameraSource::Guessed } else { CameraSource::Focal };
+    Ok(ResolvedCamera { camera, source, readout_s: None })
 }
 
 /// What the driver knows before the first frame.
@@ -407,6 +414,23 @@ enum Extracted {
     Skipped { error: String, decode: Duration },
 }
 
+/// A camera file's readout time (`readout_s`, as a run writes it beside its
+/// outputs) is compensated unless `--rolling-shutter` asks for something
+/// else than the default (no compensation), so the file reproduces the run
+/// it came from.
+fn apply_file_readout(resolved: &ResolvedCamera, opts: &mut SlamOptions) {
+    let Some(r) = resolved.readout_s.filter(|&r| r > 0.0) else { return };
+    if opts.refine.rolling_shutter.is_on() {
+        tracing::info!(
+            "rolling shutter: --rolling-shutter {} replaces the camera file's readout {r} s",
+            opts.refine.rolling_shutter
+        );
+        return;
+    }
+    tracing::info!("rolling shutter: readout {r} s from the camera file");
+    opts.refine.rolling_shutter = crate::options::RollingShutter::Seconds(r);
+}
+
 /// Runs the pipeline on `config.input` into `config.output`.
 pub fn run(config: &RunConfig, events: EventSink, mut hooks: RunHooks<'_>) -> Result<RunOutput, SlamError> {
     let started = Instant::now();
@@ -422,6 +446,7 @@ pub fn run(config: &RunConfig, events: EventSink, mut hooks: RunHooks<'_>) -> Re
     let source = open_source(&config.input, &opts.source())?;
     let resolved = resolve_camera(&config.camera, &config.input, source.as_ref())?;
     let mut slam_opts = opts.slam.clone();
+    apply_file_readout(&resolved, &mut slam_opts);
     // A focal length that is only a prior is refined by bundle adjustment.
     slam_opts.refine.refine_intrinsics = config.camera.refines(&resolved.source, slam_opts.refine.refine_intrinsics);
     if slam_opts.refine.refine_intrinsics {
@@ -791,6 +816,29 @@ mod tests {
         let b = run(&c, EventSink::none(), RunHooks::default()).unwrap_or_else(|e| panic!("run: {e}"));
         assert_eq!(b.report.camera_source, Some(CameraSource::File { path: written }));
         for name in ["trajectory.tum", "cameras.bin", "images.bin", "points3D.bin", "camera.yaml"] {
+            let read = |dir: &Path| std::fs::read(dir.join(name)).unwrap_or_else(|e| panic!("{name}: {e}"));
+            assert!(read(&first) == read(&second), "{name} differs when the written camera is given back");
+        }
+    }
+
+    #[test]
+    fn the_written_camera_file_carries_the_readout() {
+        let root = tempfile::tempdir().unwrap_or_else(|e| panic!("tempdir: {e}"));
+        let input = sequence(root.path(), 20);
+        let (first, second) = (root.path().join("first"), root.path().join("second"));
+        let mut c = config(&input, &first, 20, false);
+        c.options.slam.refine.rolling_shutter = crate::options::RollingShutter::Seconds(0.02);
+        let a = run(&c, EventSink::none(), RunHooks::default()).unwrap_or_else(|e| panic!("run: {e}"));
+        assert_eq!(a.report.camera.readout_s, 0.02);
+        let written = first.join("camera.yaml");
+        let file = colslam_camera::file::read_camera_file_report(&written).unwrap_or_else(|e| panic!("{e}"));
+        assert_eq!(file.readout_s, Some(0.02));
+        // Given back with the default options, the file's readout is compensated.
+        let mut c = config(&input, &second, 20, false);
+        c.camera = CameraOptions { camera: Some(written), ..CameraOptions::default() };
+        let b = run(&c, EventSink::none(), RunHooks::default()).unwrap_or_else(|e| panic!("run: {e}"));
+        assert_eq!(b.report.options.refine.rolling_shutter, crate::options::RollingShutter::Seconds(0.02));
+        for name in ["trajectory.tum", "images.bin", "points3D.bin", "camera.yaml"] {
             let read = |dir: &Path| std::fs::read(dir.join(name)).unwrap_or_else(|e| panic!("{name}: {e}"));
             assert!(read(&first) == read(&second), "{name} differs when the written camera is given back");
         }

@@ -21,7 +21,7 @@
 //! --only synthetic-150 -- --subpixel-keypoints false`.
 
 use crate::stdout::outln;
-use crate::suite::{self, Ctx, sequences};
+use crate::suite::{self, Ctx, check_timeout, output_root, sequences};
 use anyhow::{Context, Result, bail};
 use colslam_features::{FeatureExtractor, Features, Matcher, NnMatcher, NnMatcherOptions, OrbExtractor, OrbOptions};
 use colslam_geometry::Vec2;
@@ -30,7 +30,7 @@ use colslam_synth::SyntheticSequence;
 use serde::Serialize;
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
-use std::time::{Duration, Instant};
+use std::time::Instant;
 
 /// Default output folder.
 pub const DEFAULT_OUT_DIR: &str = "bench-out/precision";
@@ -319,23 +319,11 @@ fn keypoint_errors(opts: &colslam_synth::SynthOptions, args: &Args) -> Result<[L
 
 /// Runs `bench precision`.
 pub fn run(args: &Args, quiet: bool, threads: Option<usize>) -> Result<()> {
-    if args.timeout == 0 {
-        bail!("--timeout must be at least 1 second");
-    }
+    check_timeout(args.timeout)?;
     let size = args.synthetic_size.as_deref().map(sequences::parse_size).transpose()?;
-    std::fs::create_dir_all(&args.out).with_context(|| format!("creating {}", args.out.display()))?;
-    let out = args.out.canonicalize().with_context(|| format!("resolving {}", args.out.display()))?;
-    let gen_dir = out.join("data");
-    let data = sequences::data_dir(args.data.as_deref());
-    let all = sequences::suite_sequences(&args.suite, &data, size, &gen_dir)?;
-    let seqs = sequences::restrict(all, &args.only, size, &gen_dir)?;
-    let ctx = Ctx {
-        exe: std::env::current_exe().context("locating the colslam executable")?,
-        out: out.clone(),
-        timeout: Duration::from_secs(args.timeout),
-        threads,
-        quiet,
-    };
+    let out = output_root(&args.out)?;
+    let seqs = sequences::selected(&args.suite, args.data.as_deref(), &args.only, size, &out)?;
+    let ctx = Ctx::new(None, out.clone(), args.timeout, threads, quiet)?;
     let setting = args.run_flags.join(" ");
     let mut rows = Vec::new();
     for seq in &seqs {

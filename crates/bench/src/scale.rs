@@ -24,7 +24,9 @@
 //! the same sequence.
 
 use crate::outln;
-use crate::suite::{Ctx, DEFAULT_TIMEOUT_S, fresh_dir, json_f64, json_usize, run_colslam, sequences};
+use crate::suite::{
+    Ctx, DEFAULT_TIMEOUT_S, check_timeout, fresh_dir, json_f64, json_usize, output_root, run_colslam, sequences,
+};
 use anyhow::{Context, Result, bail};
 use colslam_eval::Trajectory;
 use colslam_synth::{PathShape, SynthOptions};
@@ -32,7 +34,6 @@ use serde::Serialize;
 use serde_json::Value;
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
-use std::time::Duration;
 
 /// Default output folder.
 pub const DEFAULT_OUT_DIR: &str = "bench-scale";
@@ -453,17 +454,10 @@ pub fn markdown(rows: &[ScaleRow], header: &str) -> String {
 
 /// Runs `bench scale`.
 pub fn run(args: &Args, quiet: bool, threads: Option<usize>) -> Result<()> {
-    if args.timeout == 0 {
-        bail!("--timeout must be at least 1 second");
-    }
-    std::fs::create_dir_all(&args.out).with_context(|| format!("creating {}", args.out.display()))?;
-    let out = args.out.canonicalize().with_context(|| format!("resolving {}", args.out.display()))?;
+    check_timeout(args.timeout)?;
+    let out = output_root(&args.out)?;
     let picked = select(args, &out)?;
-    let exe = match &args.exe {
-        Some(e) => e.clone(),
-        None => std::env::current_exe().context("locating the colslam executable")?,
-    };
-    let ctx = Ctx { exe: exe.clone(), out: out.clone(), timeout: Duration::from_secs(args.timeout), threads, quiet };
+    let ctx = Ctx::new(args.exe.as_deref(), out.clone(), args.timeout, threads, quiet)?;
     let extra: Vec<String> =
         args.run_args.as_deref().map(|a| a.split_whitespace().map(String::from).collect()).unwrap_or_default();
     let mut rows = Vec::new();
@@ -495,12 +489,12 @@ pub fn run(args: &Args, quiet: bool, threads: Option<usize>) -> Result<()> {
     fill_growth(&mut rows);
     let header = format!(
         "Executable `{}`, threads {}, run arguments `{}`; growth against the shortest length of each sequence.",
-        exe.display(),
+        ctx.exe.display(),
         threads.map_or_else(|| "all".into(), |t| t.to_string()),
         extra.join(" ")
     );
     let md = markdown(&rows, &header);
-    let json = serde_json::to_vec_pretty(&serde_json::json!({ "executable": exe, "rows": rows }))?;
+    let json = serde_json::to_vec_pretty(&serde_json::json!({ "executable": ctx.exe, "rows": rows }))?;
     colslam_image::write_atomic(&out.join("scale.json"), &json).context("writing scale.json")?;
     colslam_image::write_atomic(&out.join("scale.md"), md.as_bytes()).context("writing scale.md")?;
     if !quiet {

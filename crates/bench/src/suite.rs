@@ -167,6 +167,39 @@ pub(crate) struct Ctx {
     pub(crate) quiet: bool,
 }
 
+impl Ctx {
+    /// The context of a bench command's runs: `exe` (default: this
+    /// executable) writing under `out`, each run stopped after
+    /// `timeout_s` seconds (at least one).
+    pub(crate) fn new(
+        exe: Option<&Path>,
+        out: PathBuf,
+        timeout_s: u64,
+        threads: Option<usize>,
+        quiet: bool,
+    ) -> Result<Self> {
+        let exe = match exe {
+            Some(e) => e.to_path_buf(),
+            None => std::env::current_exe().context("locating the colslam executable")?,
+        };
+        Ok(Self { exe, out, timeout: Duration::from_secs(timeout_s), threads, quiet })
+    }
+}
+
+/// Checks a bench command's `--timeout` before anything is created.
+pub(crate) fn check_timeout(timeout_s: u64) -> Result<()> {
+    if timeout_s == 0 {
+        bail!("--timeout must be at least 1 second");
+    }
+    Ok(())
+}
+
+/// Creates a bench command's output folder and returns its absolute path.
+pub(crate) fn output_root(dir: &Path) -> Result<PathBuf> {
+    std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+    dir.canonicalize().with_context(|| format!("resolving {}", dir.display()))
+}
+
 /// `name` with every character other than ASCII letters, digits, '.', '_'
 /// and '-' replaced by '-'.
 fn slug(name: &str) -> String {
@@ -432,26 +465,15 @@ pub fn run(args: &SuiteArgs, quiet: bool, threads: Option<usize>) -> Result<()> 
     if runs == 0 {
         bail!("--runs must be at least 1");
     }
-    if args.timeout == 0 {
-        bail!("--timeout must be at least 1 second");
-    }
+    check_timeout(args.timeout)?;
     let sweeps: Vec<Sweep> = args.sweep.iter().map(|s| parse_sweep(s)).collect::<Result<_>>()?;
     let peers = args.peers.as_deref().map(select_peers).transpose()?;
     let size = args.synthetic_size.as_deref().map(sequences::parse_size).transpose()?;
-    std::fs::create_dir_all(&args.out).with_context(|| format!("creating {}", args.out.display()))?;
-    let out = args.out.canonicalize().with_context(|| format!("resolving {}", args.out.display()))?;
-    let gen_dir = out.join("data");
+    let out = output_root(&args.out)?;
     let data = sequences::data_dir(args.data.as_deref());
-    let all = sequences::suite_sequences(&args.suite, &data, size, &gen_dir)?;
-    let mut seqs = sequences::restrict(all, &args.only, size, &gen_dir)?;
+    let mut seqs = sequences::selected(&args.suite, Some(&data), &args.only, size, &out)?;
     seqs.extend(args.sequences.iter().map(|p| Sequence::user(p)));
-    let ctx = Ctx {
-        exe: std::env::current_exe().context("locating the colslam executable")?,
-        out: out.clone(),
-        timeout: Duration::from_secs(args.timeout),
-        threads,
-        quiet,
-    };
+    let ctx = Ctx::new(None, out.clone(), args.timeout, threads, quiet)?;
     let load_start = load_average();
     let mut rows: Vec<RunRow> = Vec::new();
     let mut runnable: Vec<bool> = Vec::with_capacity(seqs.len());

@@ -141,6 +141,21 @@ pub fn parse_size(s: &str) -> Result<(usize, usize)> {
     Ok((w, h))
 }
 
+/// The sequences of `suite` that `only` names (all when empty), from the
+/// datasets in `data` (default: [`data_dir`]'s), the synthetic ones
+/// generated under `out/data` at `size`.
+pub fn selected(
+    suite: &str,
+    data: Option<&Path>,
+    only: &[String],
+    size: Option<(usize, usize)>,
+    out: &Path,
+) -> Result<Vec<Sequence>> {
+    let gen_dir = out.join("data");
+    let all = suite_sequences(suite, &data_dir(data), size, &gen_dir)?;
+    restrict(all, only, size, &gen_dir)
+}
+
 /// The sequences of `suite` ("quick" or "full").
 pub fn suite_sequences(
     suite: &str,

@@ -798,6 +798,14 @@ mod tests {
         assert_eq!(frames.get(), 0, "the output is checked before the first frame");
     }
 
+    /// Asserts that the files `names` of two runs' folders are identical.
+    fn assert_same_files(first: &Path, second: &Path, names: &[&str]) {
+        for name in names {
+            let read = |dir: &Path| std::fs::read(dir.join(name)).unwrap_or_else(|e| panic!("{name}: {e}"));
+            assert!(read(first) == read(second), "{name} differs when the written camera is given back");
+        }
+    }
+
     #[test]
     fn the_written_camera_file_reproduces_the_run() {
         let root = tempfile::tempdir().unwrap_or_else(|e| panic!("tempdir: {e}"));
@@ -815,10 +823,11 @@ mod tests {
         c.camera = CameraOptions { camera: Some(written.clone()), ..CameraOptions::default() };
         let b = run(&c, EventSink::none(), RunHooks::default()).unwrap_or_else(|e| panic!("run: {e}"));
         assert_eq!(b.report.camera_source, Some(CameraSource::File { path: written }));
-        for name in ["trajectory.tum", "cameras.bin", "images.bin", "points3D.bin", "camera.yaml"] {
-            let read = |dir: &Path| std::fs::read(dir.join(name)).unwrap_or_else(|e| panic!("{name}: {e}"));
-            assert!(read(&first) == read(&second), "{name} differs when the written camera is given back");
-        }
+        assert_same_files(
+            &first,
+            &second,
+            &["trajectory.tum", "cameras.bin", "images.bin", "points3D.bin", "camera.yaml"],
+        );
     }
 
     #[test]
@@ -838,10 +847,7 @@ mod tests {
         c.camera = CameraOptions { camera: Some(written), ..CameraOptions::default() };
         let b = run(&c, EventSink::none(), RunHooks::default()).unwrap_or_else(|e| panic!("run: {e}"));
         assert_eq!(b.report.options.refine.rolling_shutter, crate::options::RollingShutter::Seconds(0.02));
-        for name in ["trajectory.tum", "images.bin", "points3D.bin", "camera.yaml"] {
-            let read = |dir: &Path| std::fs::read(dir.join(name)).unwrap_or_else(|e| panic!("{name}: {e}"));
-            assert!(read(&first) == read(&second), "{name} differs when the written camera is given back");
-        }
+        assert_same_files(&first, &second, &["trajectory.tum", "images.bin", "points3D.bin", "camera.yaml"]);
     }
 
     #[test]

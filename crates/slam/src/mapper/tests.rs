@@ -674,34 +674,45 @@ fn backward_registration_goes_through_the_nearest_keyframe() {
     scene.assert_exact(&map);
 }
 
-#[test]
-fn a_revisit_ties_the_new_keyframe_to_the_old_points() {
-    // Frames 0 to 5 move right; frame 6 comes back near frame 1.
+/// Frames 0 to 5 move right, frame 6 comes back near frame 1: the scene,
+/// the map of frames 0 to 5, and the old points frame 6 sees that its
+/// reference (frame 5) does not.
+fn revisit_scene() -> (Scene, Mapper, Vec<usize>) {
     let poses = (0..6).map(path_pose).chain([path_pose_at(1.3)]).collect();
     let scene = Scene::new(poses, slab_points(500, 1), 7);
-    let frontend = scene.frontend();
     let base = scene.exact_map(0, &[0, 1, 2, 3, 4, 5]);
-    // Old points frame 6 sees that the reference (frame 5) does not.
     let hidden: Vec<usize> = scene
         .seen_by(&[0, 1, 2, 3, 4, 5], 2)
         .into_iter()
         .filter(|&p| scene.visible(6, p) && !scene.visible(5, p))
         .collect();
     assert!(hidden.len() > 10);
+    (scene, base, hidden)
+}
+
+/// How many of `hidden` the keyframe frame 6 registered with `o` observes
+/// (the map stays exact: no track joins two scene points).
+fn hidden_points_seen(scene: &Scene, base: &Mapper, hidden: &[usize], o: &SlamOptions) -> usize {
+    let mut map = base.clone();
+    let id = registered(&mut map, scene, 6, &scene.frontend(), o);
+    let seen: BTreeSet<usize> = scene
+        .mapped(&map)
+        .into_iter()
+        .filter(|(_, pid)| map.rec.point3d(*pid).unwrap().track.iter().any(|e| e.image_id == id))
+        .map(|(t, _)| t)
+        .collect();
+    scene.assert_exact(&map);
+    hidden.iter().filter(|p| seen.contains(p)).count()
+}
+
+#[test]
+fn a_revisit_ties_the_new_keyframe_to_the_old_points() {
+    let (scene, base, hidden) = revisit_scene();
     let run = |revisited: usize| {
         let mut o = opts();
         o.mapper.match_keyframes = 1;
         o.mapper.match_revisited = revisited;
-        let mut map = base.clone();
-        let id = registered(&mut map, &scene, 6, &frontend, &o);
-        let seen: BTreeSet<usize> = scene
-            .mapped(&map)
-            .into_iter()
-            .filter(|(_, pid)| map.rec.point3d(*pid).unwrap().track.iter().any(|e| e.image_id == id))
-            .map(|(t, _)| t)
-            .collect();
-        scene.assert_exact(&map);
-        hidden.iter().filter(|p| seen.contains(p)).count()
+        hidden_points_seen(&scene, &base, &hidden, &o)
     };
     assert_eq!(run(5), hidden.len(), "every old point it sees");
     assert_eq!(run(0), 0, "without revisits only the reference's points");
@@ -712,32 +723,13 @@ fn tracking_against_the_local_map_continues_the_old_tracks() {
     // As above, frame 6 comes back near frame 1, but it is matched to the
     // reference (frame 5) alone: only projecting the local map finds the
     // old points the reference does not see.
-    let poses = (0..6).map(path_pose).chain([path_pose_at(1.3)]).collect();
-    let scene = Scene::new(poses, slab_points(500, 1), 7);
-    let frontend = scene.frontend();
-    let base = scene.exact_map(0, &[0, 1, 2, 3, 4, 5]);
-    let hidden: Vec<usize> = scene
-        .seen_by(&[0, 1, 2, 3, 4, 5], 2)
-        .into_iter()
-        .filter(|&p| scene.visible(6, p) && !scene.visible(5, p))
-        .collect();
-    assert!(hidden.len() > 10);
+    let (scene, base, hidden) = revisit_scene();
     let run = |local_map: usize| {
         let mut o = opts();
         o.mapper.match_keyframes = 1;
         o.mapper.match_revisited = 0;
         o.mapper.local_map_keyframes = local_map;
-        let mut map = base.clone();
-        let id = registered(&mut map, &scene, 6, &frontend, &o);
-        // Checks too that no track joins two scene points.
-        let seen: BTreeSet<usize> = scene
-            .mapped(&map)
-            .into_iter()
-            .filter(|(_, pid)| map.rec.point3d(*pid).unwrap().track.iter().any(|e| e.image_id == id))
-            .map(|(t, _)| t)
-            .collect();
-        scene.assert_exact(&map);
-        hidden.iter().filter(|p| seen.contains(p)).count()
+        hidden_points_seen(&scene, &base, &hidden, &o)
     };
     assert_eq!(run(10), hidden.len(), "every old point it sees");
     assert_eq!(run(0), 0, "without the local map only the reference's points");

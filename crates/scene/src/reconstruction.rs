@@ -284,6 +284,19 @@ impl Reconstruction {
         Ok(report)
     }
 
+    /// Deletes an image: deregisters it as [`Self::deregister_image`] does
+    /// (its observations leave their tracks; points left with fewer than 2
+    /// observations are deleted), then removes it from the model (COLMAP's
+    /// `DeRegisterImage` followed by dropping the image, as keyframe culling
+    /// needs). Returns what the deregistration removed. Ids are not reused
+    /// while a larger one exists ([`Self::next_image_id`] is one above the
+    /// largest).
+    pub fn delete_image(&mut self, id: ImageId) -> Result<DeregisterReport, SceneError> {
+        let report = self.deregister_image(id)?;
+        self.images.remove(&id);
+        Ok(report)
+    }
+
     /// Registered image ids in registration order.
     pub fn registered_image_ids(&self) -> &[ImageId] {
         &self.reg_image_ids

@@ -133,6 +133,22 @@ fn deregistering_removes_observations_and_short_tracks() {
 }
 
 #[test]
+fn deleting_an_image_removes_it_and_its_observations() {
+    let mut rec = synthetic_model(4);
+    let victim = rec.registered_image_ids()[1];
+    let (images, registered) = (rec.num_images(), rec.num_registered_images());
+    let observed = rec.points3d().filter(|(_, p)| p.track.iter().any(|e| e.image_id == victim)).count();
+    assert!(observed > 0);
+    let report = rec.delete_image(victim).unwrap();
+    assert_eq!(report.observations_removed, observed);
+    assert!(rec.image(victim).is_none());
+    assert_eq!((rec.num_images(), rec.num_registered_images()), (images - 1, registered - 1));
+    assert!(rec.points3d().all(|(_, p)| p.track.len() >= 2 && p.track.iter().all(|e| e.image_id != victim)));
+    rec.check_consistency().unwrap();
+    assert!(matches!(rec.delete_image(victim), Err(SceneError::UnknownImage(_))));
+}
+
+#[test]
 fn transform_and_normalize_keep_projections() {
     let mut rec = synthetic_model(5);
     let before = errors(&rec);

@@ -144,6 +144,28 @@ impl CorrespondenceGraph {
         Ok(added.len())
     }
 
+    /// Removes an image and every correspondence that involves it, from
+    /// both ends (keyframe culling; COLMAP's graph is never edited, as it is
+    /// built once from a database). Returns how many correspondences of the
+    /// image were removed.
+    pub fn delete_image(&mut self, image_id: ImageId) -> Result<usize, SfmError> {
+        let node = self.images.remove(&image_id).ok_or(SfmError::UnknownImage(image_id))?;
+        for (idx, list) in node.corrs.iter().enumerate() {
+            for c in list {
+                let Some(other) = self.images.get_mut(&c.image_id) else { continue };
+                let Some(back) = other.corrs.get_mut(c.point2d_idx as usize) else { continue };
+                let before = back.len();
+                back.retain(|b| !(b.image_id == image_id && b.point2d_idx as usize == idx));
+                other.num_correspondences -= before - back.len();
+                if before > 0 && back.is_empty() {
+                    other.num_observations -= 1;
+                }
+            }
+        }
+        self.pairs.retain(|&(a, b), _| a != image_id && b != image_id);
+        Ok(node.num_correspondences)
+    }
+
     /// The correspondences of one keypoint (empty for an unknown image or index).
     pub fn correspondences(&self, image_id: ImageId, point2d_idx: u32) -> &[Correspondence] {
         self.images.get(&image_id).and_then(|n| n.corrs.get(point2d_idx as usize)).map_or(&[], Vec::as_slice)
@@ -287,6 +309,28 @@ mod tests {
             vec![Correspondence::new(ImageId(2), 0), Correspondence::new(ImageId(3), 0)]
         );
         assert!(g.transitive_correspondences(ImageId(1), 1, 3).is_empty());
+    }
+
+    #[test]
+    fn deleting_an_image_removes_its_correspondences_from_both_ends() {
+        let mut g = graph();
+        g.add_correspondences(ImageId(1), ImageId(2), &[(0, 0), (1, 1)]).unwrap();
+        g.add_correspondences(ImageId(2), ImageId(3), &[(0, 0), (2, 2)]).unwrap();
+        g.add_correspondences(ImageId(1), ImageId(3), &[(1, 4)]).unwrap();
+        assert_eq!(g.delete_image(ImageId(2)).unwrap(), 4);
+        assert!(!g.exists_image(ImageId(2)));
+        assert_eq!(g.num_image_pairs(), 1);
+        assert_eq!(g.num_correspondences_between(ImageId(1), ImageId(2)), 0);
+        assert!(g.correspondences(ImageId(1), 0).is_empty());
+        assert_eq!(g.correspondences(ImageId(1), 1), &[Correspondence::new(ImageId(3), 4)]);
+        assert!(g.correspondences(ImageId(3), 0).is_empty() && g.correspondences(ImageId(3), 2).is_empty());
+        assert_eq!((g.num_observations_for_image(ImageId(1)), g.num_correspondences_for_image(ImageId(1))), (1, 1));
+        assert_eq!((g.num_observations_for_image(ImageId(3)), g.num_correspondences_for_image(ImageId(3))), (1, 1));
+        assert_eq!(g.connected_images(ImageId(3)), vec![(ImageId(1), 1)]);
+        assert!(matches!(g.delete_image(ImageId(2)), Err(SfmError::UnknownImage(_))));
+        // The id can be added again, with no correspondences.
+        g.add_image(ImageId(2), 5).unwrap();
+        assert_eq!(g.num_correspondences_for_image(ImageId(2)), 0);
     }
 
     #[test]

@@ -100,6 +100,12 @@ impl RecordObs {
         Self { frame_kp, keypoint: [(pixel.x - 0.5) as f32, (pixel.y - 0.5) as f32], keyframe, keyframe_kp }
     }
 
+    /// The same observation linked to keypoint `keyframe_kp` of `keyframe`
+    /// instead (the keyframe it matched was culled).
+    pub fn relinked(&self, keyframe: ImageId, keyframe_kp: u32) -> Self {
+        Self { keyframe, keyframe_kp, ..*self }
+    }
+
     /// Its position, pixels (COLMAP convention).
     pub fn pixel(&self) -> Vec2 {
         Vec2::new(f64::from(self.keypoint[0]) + 0.5, f64::from(self.keypoint[1]) + 0.5)

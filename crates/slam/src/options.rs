@@ -269,6 +269,15 @@ pub struct MapperOptions {
     /// Standard deviation 1.2^level pixels, as ORB-SLAM.
     #[cfg_attr(feature = "cli", arg(long))]
     pub weight_by_level: bool,
+    /// Remove keyframes whose points other keyframes see (ORB-SLAM's keyframe culling).
+    ///
+    /// After each local refinement, a keyframe of the local bundle (never
+    /// the initial pair's, never the newest) whose 3D points are more than
+    /// 90 % seen by at least three other keyframes at the same or a finer
+    /// scale leaves the map; its frame is localised at the end like any
+    /// other frame.
+    #[cfg_attr(feature = "cli", arg(long))]
+    pub cull_keyframes: bool,
 }
 
 impl Default for MapperOptions {
@@ -286,9 +295,24 @@ impl Default for MapperOptions {
             local_ba_covisible: 0,
             global_ba_growth: 1.1,
             weight_by_level: false,
+            cull_keyframes: false,
         }
     }
 }
+
+/// Keyframe culling (`--cull-keyframes`): a keyframe is redundant when more
+/// than this share of its 3D points are seen by [`CULL_MIN_OBSERVERS`] other
+/// keyframes (ORB-SLAM's 90 %).
+pub const CULL_REDUNDANT_SHARE: f64 = 0.9;
+
+/// Other keyframes that must see a point, at the same pyramid level or at
+/// most one coarser, for it to count as redundant (ORB-SLAM's 3).
+pub const CULL_MIN_OBSERVERS: usize = 3;
+
+/// Keyframes each keypoint of a culled keyframe stays linked to in its
+/// frame's record (observations of its 3D point, else graph matches):
+/// more than one survives the culling or filtering of one of them.
+pub const CULL_RECORD_LINKS: usize = 2;
 
 /// Pixel threshold of geometric verification of keyframe matches (COLMAP's
 /// two-view `max_error`).

@@ -12,9 +12,11 @@
 //!   global BA schedule;
 //! - [`Mapper::localize_all`] and [`Mapper::refine_with_all_frames`]
 //!   (`localize.rs`);
+//! - keyframe culling after registration (`cull.rs`, `--cull-keyframes`);
 //! - [`Mapper::merge`] (`merge.rs`): joining a second map;
 //! - rolling-shutter compensation (`rolling_shutter.rs`).
 
+mod cull;
 pub(crate) mod init;
 mod local_map;
 mod localize;

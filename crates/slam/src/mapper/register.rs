@@ -121,6 +121,9 @@ impl Mapper {
             return Ok(Registration::Rejected(RegisterFailure::TooFewPoints(kept)));
         }
         self.keyframes.push(Keyframe { image_id, data: data.clone(), version });
+        if opts.mapper.cull_keyframes {
+            self.cull_keyframes(image_id, opts)?;
+        }
         Ok(Registration::Registered(image_id))
     }
 

@@ -52,6 +52,8 @@ pub struct Mapper {
     /// the reconstruction owns the run's camera, and normalised coordinates
     /// made before the last refinement are stale.
     pub(super) intrinsics_version: u64,
+    /// Keyframes culled as redundant (`--cull-keyframes`, `cull.rs`).
+    pub(super) culled: usize,
 }
 
 /// Scale between ORB pyramid levels: a keypoint found at octave `o` is
@@ -79,6 +81,7 @@ impl Mapper {
             last_global: (0, 0),
             sigmas: KeypointSigmas::default(),
             intrinsics_version: 0,
+            culled: 0,
         }
     }
 
@@ -146,6 +149,12 @@ impl Mapper {
     /// The reference keyframe new frames are matched to: the last in order.
     pub fn last_keyframe(&self) -> Option<&Keyframe> {
         self.keyframes.last()
+    }
+
+    /// Keyframes culled as redundant so far (`--cull-keyframes`); their
+    /// frames are among the records.
+    pub fn culled_keyframes(&self) -> usize {
+        self.culled
     }
 
     /// Records of the non-keyframes.

@@ -1328,3 +1328,7 @@ fn refresh_keyframes_renormalizes_only_stale_keyframes() {
     assert!(map.keyframes.iter().all(|k| k.version == map.intrinsics_version));
     assert_ne!(map.keyframes[0].data.normalized, before[0]);
 }
+
+// ----- keyframe culling (tests/cull.rs) -----------------------------------------
+
+mod cull;

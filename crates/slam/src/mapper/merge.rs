@@ -212,6 +212,7 @@ impl Mapper {
             }
         }
         self.order_keyframes_by_time();
+        self.culled += source.culled;
         for r in &source.records {
             let mut r = r.clone();
             // Maps are joined before rolling-shutter compensation, which

@@ -32,6 +32,12 @@ pub struct DemoArgs {
     /// Motion blur: exposure as a fraction of the frame interval (0: none).
     #[arg(long, value_name = "FRACTION", default_value_t = SynthOptions::default().motion_blur)]
     pub blur: f64,
+    /// Rolling-shutter readout time in seconds, first row to last (0: a global shutter).
+    #[arg(long, value_name = "SECONDS", default_value_t = SynthOptions::default().readout)]
+    pub readout: f64,
+    /// Amplitude of the hand-held orientation jitter in degrees (a faster-turning camera).
+    #[arg(long, value_name = "DEG", default_value_t = SynthOptions::default().jitter_rotation_deg)]
+    pub rotation_jitter: f64,
     /// Render with lens distortion (OPENCV model k1, k2, p1, p2). Default: none.
     #[arg(long, num_args = 4, value_names = ["K1", "K2", "P1", "P2"], allow_hyphen_values = true)]
     pub distortion: Option<Vec<f64>>,
@@ -53,6 +59,8 @@ impl DemoArgs {
             height: self.height,
             noise_sigma: self.noise,
             motion_blur: self.blur,
+            readout: self.readout,
+            jitter_rotation_deg: self.rotation_jitter,
             distortion: self.distortion.as_ref().map(|d| [d[0], d[1], d[2], d[3]]),
             seed: self.scene_seed,
             ..SynthOptions::default()

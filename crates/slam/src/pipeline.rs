@@ -12,8 +12,8 @@ use crate::frontend::Frontend;
 use crate::keyframe::{ForceKeyframe, keyframe_decision};
 use crate::mapper::init::{PairMatches, two_view};
 use crate::mapper::{Mapper, RegisterFailure, Registration};
+use crate::options::SlamOptions;
 use crate::options::{GlobalBaTolerance, KEYFRAME_TWO_VIEW_TRIALS};
-use crate::options::{RollingShutter, SlamOptions};
 use crate::timing::{Stage, StageTimings};
 use colslam_estimators::TwoViewConfig;
 use colslam_features::{Match, flow_score};
@@ -695,17 +695,8 @@ impl Slam {
         map.add_records(extra);
         // Every normalised coordinate from the map's final camera.
         map.refresh_all()?;
-        let mut loc = map.localize_all(&self.opts, &mut self.timings)?;
-        let readout = match self.opts.refine.rolling_shutter {
-            RollingShutter::Seconds(s) => s,
-            RollingShutter::Auto => map.estimate_readout(&loc, &self.opts, &mut self.timings)?,
-        };
-        if readout > 0.0 {
-            loc = map.compensate_rolling_shutter(loc, readout, &self.opts, &mut self.timings)?;
-        } else if self.opts.refine.rolling_shutter.is_on() {
-            // The final BA stopped early for a compensation that did not come.
-            loc = map.converge_uncompensated(&self.opts, &mut self.timings)?;
-        }
+        let loc = map.localize_all(&self.opts, &mut self.timings)?;
+        let (mut loc, readout) = map.rolling_shutter(loc, &self.opts, &mut self.timings)?;
         if self.opts.refine.refine_all_frames {
             map.refine_with_all_frames(&mut loc.poses, &loc.inliers, &self.opts, &mut self.timings)?;
         }

@@ -135,24 +135,35 @@ impl SyntheticSequence {
     }
 
     /// Renders frame `i`: supersampled, motion blurred when `motion_blur > 0`,
+    /// row by row from the poses of a rolling shutter when `readout > 0`,
     /// with the configured noise.
     pub fn render(&self, i: usize) -> Result<Image, SynthError> {
         let pose = *self.pose(i)?;
         let (w, h) = (self.opts.width, self.opts.height);
         let mut acc = vec![0f32; w * h * 3];
-        if self.opts.motion_blur > 0.0 && self.opts.blur_samples > 1 {
-            let k = self.opts.blur_samples;
-            let weight = 1.0 / k as f32;
-            let t0 = self.timestamp(i);
-            let span = self.opts.motion_blur / self.opts.fps;
-            for s in 0..k {
-                let t = t0 + span * ((s as f64 + 0.5) / k as f64 - 0.5);
+        let t0 = self.timestamp(i);
+        let blurred = self.opts.motion_blur > 0.0 && self.opts.blur_samples > 1;
+        let (k, span) =
+            if blurred { (self.opts.blur_samples, self.opts.motion_blur / self.opts.fps) } else { (1, 0.0) };
+        let weight = 1.0 / k as f32;
+        for s in 0..k {
+            let t = if blurred { t0 + span * ((s as f64 + 0.5) / k as f64 - 0.5) } else { t0 };
+            if self.opts.readout > 0.0 {
+                let pose_of_row = |j: usize| self.trajectory.world_from_cam(self.row_time(t, j));
+                render::accumulate_rolling(&self.scene, &self.rays, &pose_of_row, weight, &mut acc);
+            } else if blurred {
                 render::accumulate(&self.scene, &self.rays, &self.trajectory.world_from_cam(t), weight, &mut acc);
+            } else {
+                render::accumulate(&self.scene, &self.rays, &pose, 1.0, &mut acc);
             }
-        } else {
-            render::accumulate(&self.scene, &self.rays, &pose, 1.0, &mut acc);
         }
         Ok(render::quantise(&acc, w, h, self.opts.noise_sigma, self.noise_seed(i)))
+    }
+
+    /// When pixel row `row` of an exposure at time `t` is read: the middle
+    /// row at `t` (COLMAP's row centres `row + 0.5` over `height` rows).
+    pub fn row_time(&self, t: f64, row: usize) -> f64 {
+        t + ((row as f64 + 0.5) / self.opts.height as f64 - 0.5) * self.opts.readout
     }
 
     /// Renders the view from any `world_from_cam` pose (sharp, no noise).

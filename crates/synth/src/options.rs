@@ -118,6 +118,15 @@ pub struct SynthOptions {
     /// Sub-frame renders averaged for motion blur when `motion_blur > 0`.
     /// Default 4.
     pub blur_samples: usize,
+    /// Rolling-shutter readout time in seconds, first row to last, in
+    /// [0, 1 / fps]. 0 (default) renders a global shutter; above 0 pixel row
+    /// `r` is seen from the pose at `t + ((r + 0.5) / height - 0.5) *
+    /// readout` (the middle row at the frame time, whose pose is the ground
+    /// truth), as a CMOS sensor reads its rows one after the other.
+    /// Left out of `scene.json` when 0, so global-shutter folders stay as
+    /// they were.
+    #[serde(skip_serializing_if = "is_zero")]
+    pub readout: f64,
     /// Supersampling factor per axis (`n x n` rays per pixel). Default 2.
     pub supersample: usize,
     /// Seed of every random choice (textures, furniture jitter, path, noise).
@@ -148,6 +157,10 @@ pub struct SynthOptions {
     pub jitter_rotation_deg: f64,
 }
 
+fn is_zero(v: &f64) -> bool {
+    *v == 0.0
+}
+
 impl Default for SynthOptions {
     fn default() -> Self {
         Self {
@@ -160,6 +173,7 @@ impl Default for SynthOptions {
             noise_sigma: 2.0,
             motion_blur: 0.0,
             blur_samples: 4,
+            readout: 0.0,
             supersample: 2,
             seed: 20_240_601,
             room_size: [6.0, 5.0, 2.8],
@@ -253,6 +267,9 @@ impl SynthOptions {
                 self.motion_blur,
                 "must be an exposure fraction of the frame interval in [0, 1]",
             ));
+        }
+        if !self.readout.is_finite() || !(0.0..=1.0 / self.fps).contains(&self.readout) {
+            return Err(invalid("readout", self.readout, "must be a readout time in seconds in [0, 1 / fps]"));
         }
         if self.blur_samples == 0 || self.blur_samples > MAX_BLUR_SAMPLES {
             return Err(invalid("blur_samples", self.blur_samples, &format!("must be in 1..={MAX_BLUR_SAMPLES}")));

@@ -188,45 +188,77 @@ fn cull_of(cs: &[Vec3; 8]) -> Cull {
 /// Adds `weight` times the supersampled radiance of the view from
 /// `world_from_cam` into `acc` (`width * height * 3` floats).
 pub(crate) fn accumulate(scene: &Scene, rays: &RayTable, world_from_cam: &Rigid3, weight: f32, acc: &mut [f32]) {
+    let boxes = frame_boxes(scene, world_from_cam);
+    let w = rays.width;
+    acc.par_chunks_exact_mut(w * 3)
+        .enumerate()
+        .for_each(|(j, row)| shade_row(scene, rays, world_from_cam, &boxes, weight, j, row));
+}
+
+/// [`accumulate`] for a rolling shutter: pixel row `j` is seen from
+/// `pose_of_row(j)` (each row culls the boxes for its own pose).
+pub(crate) fn accumulate_rolling(
+    scene: &Scene,
+    rays: &RayTable,
+    pose_of_row: &(dyn Fn(usize) -> Rigid3 + Sync),
+    weight: f32,
+    acc: &mut [f32],
+) {
+    let w = rays.width;
+    acc.par_chunks_exact_mut(w * 3).enumerate().for_each(|(j, row)| {
+        let pose = pose_of_row(j);
+        let boxes = frame_boxes(scene, &pose);
+        shade_row(scene, rays, &pose, &boxes, weight, j, row);
+    });
+}
+
+/// Adds `weight` times the supersampled radiance of pixel row `j` seen from
+/// `world_from_cam` (with its culled `boxes`) into `row` (`width * 3` floats).
+fn shade_row(
+    scene: &Scene,
+    rays: &RayTable,
+    world_from_cam: &Rigid3,
+    boxes: &[FrameBox],
+    weight: f32,
+    j: usize,
+    row: &mut [f32],
+) {
     let r = world_from_cam.rotation_matrix();
     let o = world_from_cam.translation;
-    let boxes = frame_boxes(scene, world_from_cam);
     let (w, ss) = (rays.width, rays.ss);
     let sw = w * ss;
     let per_sample = weight / (ss * ss) as f32;
-    acc.par_chunks_exact_mut(w * 3).enumerate().for_each(|(j, row)| {
-        let (ylo, yhi) = rays.row_y.get(j).copied().unwrap_or((f64::NEG_INFINITY, f64::INFINITY));
-        let cand: Vec<FrameBox> = boxes.iter().filter(|b| b.cull.overlaps_rows(ylo, yhi)).copied().collect();
-        for sj in 0..ss {
-            let srow = (j * ss + sj) * sw;
-            let Some(samples) = rays.xy.get(srow..srow + sw) else { continue };
-            for (si, s) in samples.iter().enumerate() {
-                let (x, y) = (s[0], s[1]);
-                let d = r * Vec3::new(x, y, 1.0);
-                let inv = [1.0 / d.x, 1.0 / d.y, 1.0 / d.z];
-                let mut hit = scene.room_exit(&o, &d, &inv);
-                for b in &cand {
-                    if b.min_depth >= hit.t {
-                        break;
-                    }
-                    if b.cull.contains(x, y)
-                        && let Some((t, face)) = slab(&b.lo, &b.hi, &inv)
-                        && t < hit.t
-                    {
-                        hit = Hit { t, surface: FACES_PER_BOX * (b.index + 1) + face };
-                    }
+    let (ylo, yhi) = rays.row_y.get(j).copied().unwrap_or((f64::NEG_INFINITY, f64::INFINITY));
+    let cand: Vec<FrameBox> = boxes.iter().filter(|b| b.cull.overlaps_rows(ylo, yhi)).copied().collect();
+    for sj in 0..ss {
+        let srow = (j * ss + sj) * sw;
+        let Some(samples) = rays.xy.get(srow..srow + sw) else { continue };
+        for (si, s) in samples.iter().enumerate() {
+            let (x, y) = (s[0], s[1]);
+            let d = r * Vec3::new(x, y, 1.0);
+            let inv = [1.0 / d.x, 1.0 / d.y, 1.0 / d.z];
+            let mut hit = scene.room_exit(&o, &d, &inv);
+            for b in &cand {
+                if b.min_depth >= hit.t {
+                    break;
                 }
-                let p = o + d * hit.t;
-                let c = scene.radiance(hit.surface, &p);
-                let i = si / ss;
-                // i < w since si < sw = w * ss; row holds w * 3 floats.
-                let px = &mut row[3 * i..3 * i + 3];
-                px[0] += c[0] * per_sample;
-                px[1] += c[1] * per_sample;
-                px[2] += c[2] * per_sample;
+                if b.cull.contains(x, y)
+                    && let Some((t, face)) = slab(&b.lo, &b.hi, &inv)
+                    && t < hit.t
+                {
+                    hit = Hit { t, surface: FACES_PER_BOX * (b.index + 1) + face };
+                }
             }
+            let p = o + d * hit.t;
+            let c = scene.radiance(hit.surface, &p);
+            let i = si / ss;
+            // i < w since si < sw = w * ss; row holds w * 3 floats.
+            let px = &mut row[3 * i..3 * i + 3];
+            px[0] += c[0] * per_sample;
+            px[1] += c[1] * per_sample;
+            px[2] += c[2] * per_sample;
         }
-    });
+    }
 }
 
 /// Depth (camera z) of the scene at every pixel centre, row-major.

@@ -107,3 +107,26 @@ fn rendering_does_not_depend_on_the_thread_count() {
     let one = rayon::ThreadPoolBuilder::new().num_threads(1).build().unwrap().install(build_and_render);
     assert!(one == many, "single-threaded render differs");
 }
+
+#[test]
+fn a_rolling_shutter_sees_each_row_from_its_own_time() {
+    // Each row of a rolling-shutter frame is the same row of the sharp view
+    // from the pose at that row's time; a global shutter is not.
+    let gs = SynthOptions { noise_sigma: 0.0, jitter_rotation_deg: 5.0, ..small_opts(15, 160, 120) };
+    let rs = SynthOptions { readout: 0.03, ..gs.clone() };
+    let (gs, rs) = (SyntheticSequence::new(&gs).unwrap(), SyntheticSequence::new(&rs).unwrap());
+    let i = 7;
+    let (global, rolling) = (gs.render(i).unwrap(), rs.render(i).unwrap());
+    let row = |img: &colslam_image::Image, j: usize| img.data()[j * 160 * 3..(j + 1) * 160 * 3].to_vec();
+    for j in [0, 37, 119] {
+        let pose = rs.trajectory().world_from_cam(rs.row_time(rs.timestamp(i), j));
+        assert_eq!(row(&rolling, j), row(&rs.render_pose(&pose), j), "row {j}");
+    }
+    assert_ne!(row(&rolling, 0), row(&global, 0), "the first row is read 15 ms early");
+    // Middle row time is the frame time.
+    assert!((rs.row_time(1.0, 59) + rs.row_time(1.0, 60) - 2.0).abs() < 1e-12);
+    assert!((rs.row_time(1.0, 119) - rs.row_time(1.0, 0) - 0.03 * 119.0 / 120.0).abs() < 1e-12);
+    // Longer than a frame is refused.
+    let long = SynthOptions { readout: 0.5, ..small_opts(15, 160, 120) };
+    assert!(SyntheticSequence::new(&long).is_err());
+}

@@ -612,7 +612,7 @@ impl Slam {
         }
         let (map, frontend) = (&t.map, &self.frontend);
         let matched: Result<Vec<Vec<Match>>, SlamError> = self.timings.time(Stage::Matching, || {
-            candidates.par_iter().map(|&k| Ok(frontend.match_frames(data, &map.keyframes()[k].data)?)).collect()
+            candidates.par_iter().map(|&k| frontend.match_frames(data, &map.keyframes()[k].data)).collect()
         });
         let matched = matched?;
         let mut best = 0;

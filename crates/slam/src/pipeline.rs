@@ -594,35 +594,47 @@ impl Slam {
 
     /// Matches a frame to its reference keyframe; returns the reference's
     /// position and the matches. With map reuse (`--reuse-keyframes N`, not
-    /// while tracking backwards) the frame is matched to the current
-    /// reference, its N most covisible keyframes and the last keyframe, and
-    /// the nearest view among them becomes the reference ([`choose_reference`];
-    /// ORB-SLAM's reference keyframe is the one sharing most map points).
+    /// while tracking backwards), when the current reference no longer
+    /// passes for the frame's view (fewer than the force-keyframe matches, or
+    /// flow above the threshold: it would be a candidate), the frame is also
+    /// matched to the reference's N most covisible keyframes and the last
+    /// keyframe, and the nearest view among them becomes the reference
+    /// ([`choose_reference`]; ORB-SLAM's reference keyframe is the one sharing
+    /// most map points). Looking further only then keeps the cost of a frame
+    /// the keyframe does cover at one matching.
     fn reference_matches(&mut self, data: &FrameData) -> Result<Option<(usize, Vec<Match>)>, SlamError> {
         let n = self.opts.keyframes.reuse_keyframes;
         let State::Tracking(t) = &mut self.state else { return Ok(None) };
         let Some(current) = t.reference_position() else { return Ok(None) };
-        let mut candidates = vec![current];
-        if n > 0 && !t.backward {
-            candidates.extend(t.map.covisible_keyframes(current, n));
-            candidates.push(t.map.keyframes().len() - 1);
-            // Keeps the first of each: the current reference wins ties.
-            let mut seen = HashSet::new();
-            candidates.retain(|k| seen.insert(*k));
-        }
         let (map, frontend) = (&t.map, &self.frontend);
-        let matched: Result<Vec<Vec<Match>>, SlamError> = self.timings.time(Stage::Matching, || {
-            candidates.par_iter().map(|&k| frontend.match_frames(data, &map.keyframes()[k].data)).collect()
-        });
-        let matched = matched?;
-        let mut best = 0;
-        if candidates.len() > 1 {
-            let camera = map.camera().unwrap_or(&self.camera);
-            let force = self.opts.keyframes.force_keyframe_matches;
-            best = choose_reference(map, data, &candidates, &matched, camera, force)?;
+        let first =
+            self.timings.time(Stage::Matching, || frontend.match_frames(data, &map.keyframes()[current].data))?;
+        let reuse = n > 0 && !t.backward;
+        let camera = map.camera().unwrap_or(&self.camera);
+        let kopts = &self.opts.keyframes;
+        let covers = reuse && first.len() >= kopts.force_keyframe_matches && {
+            let kps = &map.keyframes()[current].data.features.keypoints;
+            let flow = flow_score(&data.features.keypoints, kps, &first, camera.focal_x(), camera.focal_y())?;
+            flow.score <= kopts.flow_threshold
+        };
+        if !reuse || covers {
+            t.reference = reuse.then(|| map.keyframes()[current].image_id);
+            return Ok(Some((current, first)));
         }
+        let mut candidates = vec![current];
+        candidates.extend(map.covisible_keyframes(current, n));
+        candidates.push(map.keyframes().len() - 1);
+        // Keeps the first of each: the current reference wins ties.
+        let mut seen = HashSet::new();
+        candidates.retain(|k| seen.insert(*k));
+        let others: Result<Vec<Vec<Match>>, SlamError> = self.timings.time(Stage::Matching, || {
+            candidates[1..].par_iter().map(|&k| frontend.match_frames(data, &map.keyframes()[k].data)).collect()
+        });
+        let mut matched = vec![first];
+        matched.extend(others?);
+        let best = choose_reference(map, data, &candidates, &matched, camera, kopts.force_keyframe_matches)?;
         let pos = candidates[best];
-        t.reference = (n > 0 && !t.backward).then(|| t.map.keyframes()[pos].image_id);
+        t.reference = Some(map.keyframes()[pos].image_id);
         Ok(matched.into_iter().nth(best).map(|ms| (pos, ms)))
     }
 

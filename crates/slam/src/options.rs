@@ -202,11 +202,12 @@ pub struct KeyframeOptions {
     /// tracking safe).
     #[cfg_attr(feature = "cli", arg(long, value_name = "SCORE", default_value_t = KeyframeOptions::default().parallax_threshold))]
     pub parallax_threshold: f64,
-    /// Covisible keyframes of the reference each frame is also matched to (0: off).
+    /// Covisible keyframes of the reference a frame it no longer covers is matched to (0: off).
     ///
-    /// The keyframe matching the frame best becomes the reference of the
-    /// flow test and of tracking, so a camera revisiting mapped space tracks
-    /// the old keyframes and adds few new ones (map reuse).
+    /// The nearest view among them (and the last keyframe) becomes the
+    /// reference of the flow test and of tracking, so a camera revisiting
+    /// mapped space tracks the old keyframes and adds few new ones (map
+    /// reuse).
     #[cfg_attr(feature = "cli", arg(long, value_name = "N", default_value_t = KeyframeOptions::default().reuse_keyframes))]
     pub reuse_keyframes: usize,
 }

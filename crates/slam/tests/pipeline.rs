@@ -263,7 +263,7 @@ fn a_camera_coming_back_tracks_the_old_keyframes_and_adds_few() {
         (m.keyframes().len() - back, back)
     };
     let (out_without, back_without) = keyframes(0);
-    let (out_with, back_with) = keyframes(3);
+    let (out_with, back_with) = keyframes(8);
     assert!(back_without * 2 > out_without, "{back_without} keyframes back, {out_without} out: the fixture revisits");
     assert!(back_with * 4 <= out_with, "{back_with} keyframes back with reuse, {out_with} out");
 }

@@ -194,6 +194,22 @@ pub struct KeyframeOptions {
     /// Consecutive untracked frames (at least 1) before a new map is started.
     #[cfg_attr(feature = "cli", arg(long, value_name = "N", default_value_t = KeyframeOptions::default().max_lost_frames))]
     pub max_lost_frames: usize,
+    /// Rotation-compensated flow a keyframe candidate must exceed too, in [0, 1] (0: off).
+    ///
+    /// The flow score left after removing the rotation of the candidate's
+    /// two-view geometry to its reference: keyframes in a turn are then
+    /// spaced by translation, not by the turn (forced keyframes still keep
+    /// tracking safe).
+    #[cfg_attr(feature = "cli", arg(long, value_name = "SCORE", default_value_t = KeyframeOptions::default().parallax_threshold))]
+    pub parallax_threshold: f64,
+    /// Covisible keyframes of the reference a frame it no longer covers is matched to (0: off).
+    ///
+    /// The nearest view among them (and the last keyframe) becomes the
+    /// reference of the flow test and of tracking, so a camera revisiting
+    /// mapped space tracks the old keyframes and adds few new ones (map
+    /// reuse).
+    #[cfg_attr(feature = "cli", arg(long, value_name = "N", default_value_t = KeyframeOptions::default().reuse_keyframes))]
+    pub reuse_keyframes: usize,
 }
 
 impl Default for KeyframeOptions {
@@ -204,6 +220,8 @@ impl Default for KeyframeOptions {
             force_keyframe_matches: 150,
             allow_pure_rotation: false,
             max_lost_frames: 15,
+            parallax_threshold: 0.0,
+            reuse_keyframes: 0,
         }
     }
 }
@@ -596,6 +614,8 @@ impl SlamOptions {
         check(i.init_min_inliers >= 8, "init-min-inliers", i.init_min_inliers, "must be at least 8")?;
         let ft = k.flow_threshold;
         check(ft.is_finite() && (0.0..=1.0).contains(&ft), "flow-threshold", ft, "must lie in [0, 1]")?;
+        let pt = k.parallax_threshold;
+        check(pt.is_finite() && (0.0..=1.0).contains(&pt), "parallax-threshold", pt, "must lie in [0, 1]")?;
         check(k.min_matches >= 8, "min-matches", k.min_matches, "must be at least 8")?;
         check(k.max_lost_frames >= 1, "max-lost-frames", k.max_lost_frames, "must be at least 1")?;
         check(m.match_keyframes >= 1, "match-keyframes", m.match_keyframes, "must be at least 1")?;

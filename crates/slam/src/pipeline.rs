@@ -9,7 +9,7 @@ use crate::error::SlamError;
 use crate::events::{Emitter, EventSink, SlamEvent};
 use crate::frame::{FrameData, FrameId, FramePose, FrameRecord};
 use crate::frontend::Frontend;
-use crate::keyframe::{ForceKeyframe, keyframe_decision};
+use crate::keyframe::{ForceKeyframe, keyframe_decision, rotation_compensated_flow};
 use crate::mapper::init::{PairMatches, two_view};
 use crate::mapper::{Mapper, RegisterFailure, Registration};
 use crate::options::SlamOptions;
@@ -18,6 +18,7 @@ use crate::timing::{Stage, StageTimings};
 use colslam_estimators::TwoViewConfig;
 use colslam_features::{Match, flow_score};
 use colslam_io::Frame;
+use colslam_scene::ImageId;
 use rayon::prelude::*;
 use std::collections::{HashSet, VecDeque};
 use std::sync::Arc;
@@ -56,6 +57,71 @@ fn verify_frame(
     );
     (geometry, emitter.flow(data, &kf.data, matches, &inliers))
 }
+
+/// True when a keyframe candidate's rotation-compensated flow to its
+/// reference `kf` ([`rotation_compensated_flow`] over the two-view inliers)
+/// is at most `threshold`. A candidate without a relative rotation (the
+/// geometry failed or is uncalibrated) is not refused: the raw flow stands.
+fn too_little_parallax(
+    data: &FrameData,
+    kf: &crate::mapper::Keyframe,
+    matches: &[Match],
+    geometry: &Option<colslam_estimators::TwoViewGeometry>,
+    threshold: f64,
+) -> bool {
+    let Some(g) = geometry else { return false };
+    let Some(kf_from_frame) = g.cam2_from_cam1.as_ref().map(|p| p.rotation) else { return false };
+    let inliers = matches.iter().zip(&g.inlier_mask).filter(|(_, i)| **i).map(|(m, _)| m);
+    let (mut x_frame, mut x_kf) = (Vec::new(), Vec::new());
+    for m in inliers {
+        if let (Some(a), Some(b)) = (data.normalized.get(m.query as usize), kf.data.normalized.get(m.train as usize)) {
+            x_frame.push(*a);
+            x_kf.push(*b);
+        }
+    }
+    rotation_compensated_flow(&x_frame, &x_kf, &kf_from_frame).is_some_and(|p| p <= threshold)
+}
+
+/// Index in `candidates` (keyframe positions, `matched` the frame's matches
+/// to each) of the reference for map reuse: among the keyframes the frame
+/// matches safely (at least `force` matches) the one with the smallest flow,
+/// the nearest view, so the flow test asks whether any keyframe near the
+/// view exists; when none is safe, the one whose 3D points it matches most.
+/// Ties: the earlier candidate (the current reference first).
+fn choose_reference(
+    map: &Mapper,
+    data: &FrameData,
+    candidates: &[usize],
+    matched: &[Vec<Match>],
+    camera: &colslam_camera::Camera,
+    force: usize,
+) -> Result<usize, SlamError> {
+    let (fx, fy) = (camera.focal_x(), camera.focal_y());
+    let mut nearest: Option<(usize, f64)> = None;
+    for (i, (&k, ms)) in candidates.iter().zip(matched).enumerate() {
+        if ms.len() < force {
+            continue;
+        }
+        let flow = flow_score(&data.features.keypoints, &map.keyframes()[k].data.features.keypoints, ms, fx, fy)?;
+        if nearest.is_none_or(|(_, f)| flow.score < f) {
+            nearest = Some((i, flow.score));
+        }
+    }
+    if let Some((i, _)) = nearest {
+        return Ok(i);
+    }
+    let covered = |k: usize, ms: &[Match]| {
+        map.reconstruction().image(map.keyframes()[k].image_id).map_or(0, |img| {
+            ms.iter().filter(|m| img.points2d.get(m.train as usize).is_some_and(|p| p.point3d_id.is_some())).count()
+        })
+    };
+    let scores: Vec<usize> = candidates.iter().zip(matched).map(|(&k, ms)| covered(k, ms)).collect();
+    Ok((0..scores.len()).fold(0, |b, i| if scores[i] > scores[b] { i } else { b }))
+}
+
+/// A keyframe candidate is refused for too little rotation-compensated flow
+/// only while it matches at least this many times the force-keyframe count.
+const PARALLAX_SAFE_MATCHES: usize = 2;
 
 /// Non-keyframes kept in memory until the next keyframe (they are matched
 /// to it as well, then dropped). Bounds memory on long static stretches.
@@ -97,6 +163,9 @@ pub struct RunStats {
     pub forced_keyframes: usize,
     /// Keyframes deregistered by the point-count check.
     pub deregistered: usize,
+    /// Keyframe candidates refused for too little rotation-compensated flow
+    /// (`--parallax-threshold`); tracked as non-keyframes, never counted as lost.
+    pub refused_parallax: usize,
 }
 
 /// Everything a run produced.
@@ -114,9 +183,10 @@ pub struct SlamResult {
     pub stats: RunStats,
 }
 
-/// The last non-keyframe, its matches to the reference keyframe and its
-/// record index: promoted to keyframe when tracking is about to be lost.
-type Previous = (FrameData, Vec<Match>, usize);
+/// The last non-keyframe, its matches to the reference keyframe, its record
+/// index and that reference: promoted to keyframe when tracking is about to
+/// be lost.
+type Previous = (FrameData, Vec<Match>, usize, ImageId);
 
 /// What exists only while a map is tracked.
 struct Tracking {
@@ -129,11 +199,14 @@ struct Tracking {
     /// True while tracking backwards (lost tracking ends the pass instead
     /// of the map).
     backward: bool,
+    /// The keyframe frames are tracked against (map reuse,
+    /// `--reuse-keyframes`); `None`: the last keyframe.
+    reference: Option<ImageId>,
 }
 
 impl Tracking {
     fn new(map: Mapper) -> Self {
-        Self { map, prev: None, pending: Vec::new(), lost: 0, backward: false }
+        Self { map, prev: None, pending: Vec::new(), lost: 0, backward: false, reference: None }
     }
 
     /// Forgets the frames of the current direction of travel.
@@ -141,6 +214,14 @@ impl Tracking {
         self.prev = None;
         self.pending.clear();
         self.lost = 0;
+        self.reference = None;
+    }
+
+    /// Position of the reference keyframe: the chosen one while it is still
+    /// a keyframe, else the last.
+    fn reference_position(&self) -> Option<usize> {
+        let chosen = self.reference.and_then(|id| self.map.keyframe_position(id));
+        chosen.or_else(|| self.map.keyframes().len().checked_sub(1))
     }
 }
 
@@ -446,29 +527,42 @@ impl Slam {
             self.state = State::Initializing { window: vec![data] };
             return Ok(());
         }
+        let Some((kf_pos, matches)) = self.reference_matches(&data)? else { return Ok(()) };
         let State::Tracking(t) = &self.state else { return Ok(()) };
-        let Some(kf) = t.map.last_keyframe() else { return Ok(()) };
-        let (kf_id, frontend) = (kf.image_id, &self.frontend);
-        let matches = self.timings.time(Stage::Matching, || frontend.match_frames(&data, &kf.data))?;
+        let kf = &t.map.keyframes()[kf_pos];
+        let kf_id = kf.image_id;
         let camera = t.map.camera().unwrap_or(&self.camera);
         let (fx, fy) = (camera.focal_x(), camera.focal_y());
         let t0 = std::time::Instant::now();
         let flow = flow_score(&data.features.keypoints, &kf.data.features.keypoints, &matches, fx, fy)?;
         let decision = keyframe_decision(matches.len(), flow.score, &self.opts.keyframes);
-        let guard = decision.candidate && !self.opts.keyframes.allow_pure_rotation;
+        let kopts = &self.opts.keyframes;
+        let guard = decision.candidate && (!kopts.allow_pure_rotation || kopts.parallax_threshold > 0.0);
         let (geometry, frame_flow) =
             verify_frame(&self.emitter, &self.opts, &data, kf, &matches, 0.5 * (fx + fy), guard);
+        // Refused only while tracking is comfortably safe: a frame matching
+        // little more than the force threshold may not register later.
+        let refused = decision.candidate
+            && kopts.parallax_threshold > 0.0
+            && matches.len() >= PARALLAX_SAFE_MATCHES * kopts.force_keyframe_matches
+            && too_little_parallax(&data, kf, &matches, &geometry, kopts.parallax_threshold);
         // With a viewer attached this includes every frame's verification.
         self.timings.add(Stage::KeyframeTest, t0.elapsed());
         // `failed`: a keyframe registration failed, the map could not explain
-        // this frame (wrong matches, a cut, a collapsed map).
+        // this frame (wrong matches, a cut, a collapsed map). A candidate
+        // refused by a test is no failure: the frame is tracked.
         let (mut became, mut failed) = (false, false);
+        let panoramic =
+            !kopts.allow_pure_rotation && geometry.as_ref().is_some_and(|g| g.config == TwoViewConfig::Panoramic);
         if decision.candidate {
-            if guard && geometry.is_some_and(|g| g.config == TwoViewConfig::Panoramic) {
+            if guard && panoramic {
                 self.stats.rejected_rotation += 1;
                 tracing::debug!("frame {}: keyframe candidate rejected (pure rotation)", data.index());
+            } else if refused {
+                self.stats.refused_parallax += 1;
+                tracing::debug!("frame {}: keyframe candidate refused (rotation-compensated flow)", data.index());
             } else {
-                became = self.try_keyframe(&data, &matches)?;
+                became = self.try_keyframe(&data, kf_id, &matches)?;
                 failed = !became;
             }
         }
@@ -476,7 +570,7 @@ impl Slam {
             match decision.force {
                 ForceKeyframe::No => {}
                 ForceKeyframe::ThisFrame => {
-                    became = self.try_keyframe(&data, &matches)?;
+                    became = self.try_keyframe(&data, kf_id, &matches)?;
                     failed = !became;
                     self.stats.forced_keyframes += usize::from(became);
                 }
@@ -498,13 +592,59 @@ impl Slam {
         self.record_non_keyframe(data, kf_id, matches, failed)
     }
 
+    /// Matches a frame to its reference keyframe; returns the reference's
+    /// position and the matches. With map reuse (`--reuse-keyframes N`, not
+    /// while tracking backwards), when the current reference no longer
+    /// passes for the frame's view (fewer than the force-keyframe matches, or
+    /// flow above the threshold: it would be a candidate), the frame is also
+    /// matched to the reference's N most covisible keyframes and the last
+    /// keyframe, and the nearest view among them becomes the reference
+    /// ([`choose_reference`]; ORB-SLAM's reference keyframe is the one sharing
+    /// most map points). Looking further only then keeps the cost of a frame
+    /// the keyframe does cover at one matching.
+    fn reference_matches(&mut self, data: &FrameData) -> Result<Option<(usize, Vec<Match>)>, SlamError> {
+        let n = self.opts.keyframes.reuse_keyframes;
+        let State::Tracking(t) = &mut self.state else { return Ok(None) };
+        let Some(current) = t.reference_position() else { return Ok(None) };
+        let (map, frontend) = (&t.map, &self.frontend);
+        let first =
+            self.timings.time(Stage::Matching, || frontend.match_frames(data, &map.keyframes()[current].data))?;
+        let reuse = n > 0 && !t.backward;
+        let camera = map.camera().unwrap_or(&self.camera);
+        let kopts = &self.opts.keyframes;
+        let covers = reuse && first.len() >= kopts.force_keyframe_matches && {
+            let kps = &map.keyframes()[current].data.features.keypoints;
+            let flow = flow_score(&data.features.keypoints, kps, &first, camera.focal_x(), camera.focal_y())?;
+            flow.score <= kopts.flow_threshold
+        };
+        if !reuse || covers {
+            t.reference = reuse.then(|| map.keyframes()[current].image_id);
+            return Ok(Some((current, first)));
+        }
+        let mut candidates = vec![current];
+        candidates.extend(map.covisible_keyframes(current, n));
+        candidates.push(map.keyframes().len() - 1);
+        // Keeps the first of each: the current reference wins ties.
+        let mut seen = HashSet::new();
+        candidates.retain(|k| seen.insert(*k));
+        let others: Result<Vec<Vec<Match>>, SlamError> = self.timings.time(Stage::Matching, || {
+            candidates[1..].par_iter().map(|&k| frontend.match_frames(data, &map.keyframes()[k].data)).collect()
+        });
+        let mut matched = vec![first];
+        matched.extend(others?);
+        let best = choose_reference(map, data, &candidates, &matched, camera, kopts.force_keyframe_matches)?;
+        let pos = candidates[best];
+        t.reference = Some(map.keyframes()[pos].image_id);
+        Ok(matched.into_iter().nth(best).map(|ms| (pos, ms)))
+    }
+
     /// Makes the previous frame a keyframe (tracking is about to be lost);
     /// true when it was registered.
     fn promote_previous(&mut self) -> Result<bool, SlamError> {
-        let Some((prev, prev_matches, rec_idx)) = self.tracking().and_then(|t| t.prev.take()) else {
+        let Some((prev, prev_matches, rec_idx, reference)) = self.tracking().and_then(|t| t.prev.take()) else {
             return Ok(false);
         };
-        if !self.try_keyframe(&prev, &prev_matches)? {
+        if !self.try_keyframe(&prev, reference, &prev_matches)? {
             return Ok(false);
         }
         self.stats.forced_keyframes += 1;
@@ -534,7 +674,7 @@ impl Slam {
             t.pending.push((data.clone(), rec_idx));
         }
         let orphan = untracked.then(|| data.clone());
-        t.prev = Some((data, matches, rec_idx));
+        t.prev = Some((data, matches, rec_idx, kf_id));
         let reset = t.lost > max_lost && !t.backward;
         self.add_orphans(orphan.into_iter().collect());
         if reset {
@@ -546,9 +686,11 @@ impl Slam {
     /// Registers a keyframe candidate; on success, matches the pending
     /// non-keyframes to it, runs a global refinement when the map grew
     /// enough, and emits events.
-    fn try_keyframe(&mut self, data: &FrameData, matches: &[Match]) -> Result<bool, SlamError> {
+    fn try_keyframe(&mut self, data: &FrameData, reference: ImageId, matches: &[Match]) -> Result<bool, SlamError> {
         let State::Tracking(t) = &mut self.state else { return Ok(false) };
-        let image_id = match t.map.register_keyframe(data, matches, &self.frontend, &self.opts, &mut self.timings)? {
+        let Some(ref_pos) = t.map.keyframe_position(reference) else { return Ok(false) };
+        let (frontend, opts) = (&self.frontend, &self.opts);
+        let image_id = match t.map.register_keyframe_from(data, ref_pos, matches, frontend, opts, &mut self.timings)? {
             Registration::Registered(id) => id,
             Registration::Rejected(failure) => {
                 self.stats.deregistered += usize::from(matches!(failure, RegisterFailure::TooFewPoints(_)));
@@ -568,6 +710,7 @@ impl Slam {
             }
         }
         t.prev = None;
+        t.reference = None;
         let mut global = None;
         if t.map.needs_global_refine(&self.opts) {
             global = Some(t.map.global_refine(GlobalBaTolerance::Periodic, &self.opts, &mut self.timings)?);
@@ -618,7 +761,7 @@ impl Slam {
         self.finished.push(map);
         self.emitter.send(SlamEvent::MapReset { new_map, frame_index: frame, reason });
         // The last frames start the next initialisation window.
-        self.state = State::Initializing { window: prev.map(|(d, _, _)| d).into_iter().collect() };
+        self.state = State::Initializing { window: prev.map(|(d, ..)| d).into_iter().collect() };
     }
 
     /// Ends the run: a last initialisation attempt if none succeeded, final

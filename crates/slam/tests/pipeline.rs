@@ -242,6 +242,33 @@ fn a_camera_coming_back_matches_the_keyframes_it_saw_before() {
 }
 
 #[test]
+fn a_camera_coming_back_tracks_the_old_keyframes_and_adds_few() {
+    // Out along the path and back again over the same views: with map reuse
+    // each frame on the way back is tracked against the old keyframe that
+    // covers it best, whose flow is small, so few keyframes are added.
+    let opts = small_synth(45, 10);
+    let seq = SyntheticSequence::new(&opts).expect("sequence");
+    let mut frames = frames_of(&seq, opts.frames, opts.fps);
+    for k in 0..opts.frames {
+        frames.push(frame(opts.frames + k, seq.render(opts.frames - 1 - k).expect("render")));
+    }
+    let keyframes = |reuse: usize| {
+        let mut o = SlamOptions::default();
+        o.keyframes.reuse_keyframes = reuse;
+        let r = run(&frames, seq.camera(), o, EventSink::none());
+        assert_eq!(r.maps.len(), 1, "notes: {:?}", r.stats.notes);
+        assert!(r.not_localized.is_empty(), "not localised: {:?}", r.not_localized);
+        let m = &r.maps[0].map;
+        let back = m.keyframes().iter().filter(|k| k.data.index() >= opts.frames).count();
+        (m.keyframes().len() - back, back)
+    };
+    let (out_without, back_without) = keyframes(0);
+    let (out_with, back_with) = keyframes(8);
+    assert!(back_without * 2 > out_without, "{back_without} keyframes back, {out_without} out: the fixture revisits");
+    assert!(back_with * 4 <= out_with, "{back_with} keyframes back with reuse, {out_with} out");
+}
+
+#[test]
 fn a_slow_camera_widens_the_initialisation_window() {
     // The default path over 300 frames: too little motion within the first
     // 20 frames for an initial pair, so the window must span more time.

@@ -62,10 +62,26 @@ pub(crate) struct Correspondences {
 impl Mapper {
     /// Registers a keyframe candidate (paper 3.5) and refines the map around
     /// it. `matches_to_last` are its matches (query = candidate) to the
-    /// reference keyframe.
+    /// last keyframe, its reference.
     pub fn register_keyframe(
         &mut self,
         data: &FrameData,
+        matches_to_last: &[Match],
+        frontend: &Frontend,
+        opts: &SlamOptions,
+        timings: &mut StageTimings,
+    ) -> Result<Registration, SlamError> {
+        let last = self.keyframes.len().saturating_sub(1);
+        self.register_keyframe_from(data, last, matches_to_last, frontend, opts, timings)
+    }
+
+    /// [`Self::register_keyframe`] for a candidate whose reference is the
+    /// keyframe at position `reference` (map reuse: the keyframe that covers
+    /// its view best), `matches_to_last` its matches to it.
+    pub fn register_keyframe_from(
+        &mut self,
+        data: &FrameData,
+        reference: usize,
         matches_to_last: &[Match],
         frontend: &Frontend,
         opts: &SlamOptions,
@@ -75,7 +91,7 @@ impl Mapper {
         // `data` was normalised with the camera as it is now (the caller's
         // duty); local refinement below may refine it.
         let version = self.intrinsics_version;
-        let recent: Vec<usize> = (0..self.keyframes.len()).rev().take(opts.mapper.match_keyframes).collect();
+        let recent = self.registration_keyframes(reference, opts.mapper.match_keyframes);
         let mut kf_matches = self.match_recent(data, &recent, matches_to_last, frontend, timings)?;
         let started = std::time::Instant::now();
         let corr = self.correspondences(data, &kf_matches);
@@ -125,6 +141,41 @@ impl Mapper {
             self.cull_keyframes(image_id, opts)?;
         }
         Ok(Registration::Registered(image_id))
+    }
+
+    /// Positions of the keyframes a candidate with reference `reference` is
+    /// matched against, the reference first: the last `n` keyframes when the
+    /// reference is the last (paper 3.5); otherwise the reference and the
+    /// keyframes sharing most points with it (a revisit: the recent keyframes
+    /// may look elsewhere).
+    fn registration_keyframes(&self, reference: usize, n: usize) -> Vec<usize> {
+        let len = self.keyframes.len();
+        if reference + 1 >= len {
+            return (0..len).rev().take(n).collect();
+        }
+        let mut out = vec![reference];
+        out.extend(self.covisible_keyframes(reference, n.saturating_sub(1)));
+        out
+    }
+
+    /// Position of the keyframe registered as `image_id`, if it is one.
+    pub fn keyframe_position(&self, image_id: ImageId) -> Option<usize> {
+        self.keyframes.iter().position(|k| k.image_id == image_id)
+    }
+
+    /// Positions of the up-to-`n` keyframes sharing the most 3D points with
+    /// the keyframe at position `k`, most shared first.
+    pub fn covisible_keyframes(&self, k: usize, n: usize) -> Vec<usize> {
+        let Some(kf) = self.keyframes.get(k) else { return Vec::new() };
+        if n == 0 {
+            return Vec::new();
+        }
+        // Images that are no keyframe (none today) are skipped, hence the margin.
+        covisible_images(&self.rec, kf.image_id, 1, 2 * n)
+            .into_iter()
+            .filter_map(|id| self.keyframe_position(id))
+            .take(n)
+            .collect()
     }
 
     /// Matches of `data` to the keyframes at positions `recent` (newest

@@ -325,6 +325,23 @@ pub const LOCAL_MAP_RATIO: f32 = 0.8;
 /// `isInFrustum`).
 pub const LOCAL_MAP_MIN_VIEW_COS: f64 = 0.5;
 
+/// Points of one keyframe that must project into another (both ways) for
+/// `--match-overlapping` to match the pair: as many as a registration needs
+/// PnP inliers (COLMAP's 30), so a pair that could not hold a pose alone is
+/// not worth its matching time.
+pub const OVERLAP_MIN_POINTS: usize = 30;
+
+/// Largest angle between the two viewing rays of a point for it to count
+/// towards the overlap of two keyframes, degrees: ORB descriptors are not
+/// invariant to stronger perspective change.
+pub const OVERLAP_MAX_VIEW_ANGLE_DEG: f64 = 30.0;
+
+/// Largest Sampson error (pixels) of a match of `--match-overlapping` under
+/// the final poses: tighter than registration's [`VERIFY_MAX_ERROR_PX`],
+/// since the poses are refined by then and wide-baseline pairs of repeated
+/// facades offer wrong matches along the epipolar lines.
+pub const OVERLAP_MAX_ERROR_PX: f64 = 1.5;
+
 /// The most keyframes a covisible local BA varies (`--local-ba-covisible`),
 /// so that a map whose keyframes all see one scene keeps local BA local.
 pub const LOCAL_BA_MAX_COVISIBLE: usize = 30;
@@ -424,6 +441,11 @@ pub struct RefineOptions {
     /// COLMAP registers every image; the model then holds every frame.
     #[cfg_attr(feature = "cli", arg(long))]
     pub refine_all_frames: bool,
+    /// At the end, match each keyframe with up to N keyframes whose views overlap its own but that were never matched with it (0: off).
+    ///
+    /// The final poses say which pairs see the same points (a path that comes back, photos around a building); their verified matches join and lengthen the tracks before the final bundle adjustment.
+    #[cfg_attr(feature = "cli", arg(long, value_name = "N", default_value_t = RefineOptions::default().match_overlapping))]
+    pub match_overlapping: usize,
     /// Rolling-shutter readout time of the camera in seconds, in [0, 1) (0: global shutter), or `auto`.
     ///
     /// From the first row to the last. Observations are moved to their
@@ -439,6 +461,7 @@ impl Default for RefineOptions {
             refine_intrinsics: false,
             localize_all_frames: true,
             refine_all_frames: false,
+            match_overlapping: 0,
             rolling_shutter: RollingShutter::Seconds(0.0),
         }
     }

@@ -736,6 +736,38 @@ fn tracking_against_the_local_map_continues_the_old_tracks() {
 }
 
 #[test]
+fn matching_overlapping_pairs_at_the_end_joins_the_old_tracks() {
+    // Frame 6 comes back near frame 1 but was registered against frame 5
+    // alone; at the end, the keyframes whose views overlap its own are
+    // matched with it and the old tracks continue into it.
+    let (scene, base, hidden) = revisit_scene();
+    let mut o = opts();
+    o.mapper.match_keyframes = 1;
+    o.mapper.match_revisited = 0;
+    let frontend = scene.frontend();
+    let mut registered_map = base.clone();
+    let id = registered(&mut registered_map, &scene, 6, &frontend, &o);
+    let run = |per_keyframe: usize| {
+        let mut map = registered_map.clone();
+        let mut o = o.clone();
+        o.refine.match_overlapping = per_keyframe;
+        let report = map.match_overlapping_pairs(&frontend, &o, &mut StageTimings::default()).unwrap();
+        scene.assert_exact(&map);
+        let seen: BTreeSet<usize> = scene
+            .mapped(&map)
+            .into_iter()
+            .filter(|(_, pid)| map.rec.point3d(*pid).unwrap().track.iter().any(|e| e.image_id == id))
+            .map(|(t, _)| t)
+            .collect();
+        (report.pairs, hidden.iter().filter(|p| seen.contains(p)).count())
+    };
+    let (pairs, seen) = run(5);
+    assert!(pairs >= 3, "frame 6 overlaps frames 0-4: {pairs} pairs matched");
+    assert_eq!(seen, hidden.len(), "every old point it sees");
+    assert_eq!(run(0), (0, 0), "off: no pair matched, only the reference's points");
+}
+
+#[test]
 fn correspondences_take_the_first_match_of_each_keypoint_and_point() {
     let scene = Scene::translating(6);
     let map = scene.exact_map(0, &[0, 4]);

@@ -14,7 +14,9 @@
 use super::state::Mapper;
 use crate::error::SlamError;
 use crate::frontend::Frontend;
-use crate::options::{OVERLAP_MAX_ERROR_PX, OVERLAP_MAX_VIEW_ANGLE_DEG, OVERLAP_MIN_POINTS, SlamOptions};
+use crate::options::{
+    GlobalBaTolerance, OVERLAP_MAX_ERROR_PX, OVERLAP_MAX_VIEW_ANGLE_DEG, OVERLAP_MIN_POINTS, SlamOptions,
+};
 use crate::timing::{Stage, StageTimings};
 use colslam_scene::ImageId;
 use colslam_scene::projection::project;
@@ -69,6 +71,11 @@ impl Mapper {
             complete_and_merge_all(&mut self.rec, &self.graph, &tri)?;
             Ok(())
         })?;
+        // New tracks through wide-baseline matches hold outliers that the
+        // filter only finds after a bundle adjustment: adjust and filter
+        // once here, so the caller's converged adjustment starts from the
+        // filtered tracks (COLMAP iterates global refinement the same way).
+        self.global_refine(GlobalBaTolerance::Periodic, opts, timings)?;
         report.points.1 = self.rec.num_points3d();
         tracing::debug!(
             "map {}: matched {} overlapping keyframe pairs, {} new correspondences, points {} -> {}",

@@ -441,7 +441,7 @@ pub struct RefineOptions {
     /// COLMAP registers every image; the model then holds every frame.
     #[cfg_attr(feature = "cli", arg(long))]
     pub refine_all_frames: bool,
-    /// At the end, match each keyframe with up to N keyframes whose views overlap its own but that were never matched with it (0: off).
+    /// At the end, match each keyframe with up to N overlapping keyframes it was never matched with (0: off).
     ///
     /// The final poses say which pairs see the same points (a path that comes back, photos around a building); their verified matches join and lengthen the tracks before the final bundle adjustment.
     #[cfg_attr(feature = "cli", arg(long, value_name = "N", default_value_t = RefineOptions::default().match_overlapping))]

@@ -150,6 +150,11 @@ pub struct InitOptions {
     /// COLMAP's 16 degrees suits photo collections; video needs less.
     #[cfg_attr(feature = "cli", arg(long, value_name = "DEGREES", default_value_t = InitOptions::default().init_min_tri_angle))]
     pub init_min_tri_angle: f64,
+    /// Maximum median triangulation angle of the initial pair, degrees, above the minimum (180: no limit).
+    ///
+    /// Photo sets offer pairs 60-80 degrees apart that verify with barely a hundred ORB inliers; a map started from them is worse (strecha entry: 40 helps, herzjesu a little worse, docs/benchmarks.md).
+    #[cfg_attr(feature = "cli", arg(long, value_name = "DEGREES", default_value_t = InitOptions::default().init_max_tri_angle))]
+    pub init_max_tri_angle: f64,
     /// Minimum inlier matches of the initial pair, at least 8.
     #[cfg_attr(feature = "cli", arg(long, value_name = "N", default_value_t = InitOptions::default().init_min_inliers))]
     pub init_min_inliers: usize,
@@ -160,7 +165,13 @@ pub struct InitOptions {
 
 impl Default for InitOptions {
     fn default() -> Self {
-        Self { init_frames: 20, init_min_tri_angle: 2.0, init_min_inliers: 100, init_min_points: 50 }
+        Self {
+            init_frames: 20,
+            init_min_tri_angle: 2.0,
+            init_max_tri_angle: 180.0,
+            init_min_inliers: 100,
+            init_min_points: 50,
+        }
     }
 }
 
@@ -592,6 +603,8 @@ impl SlamOptions {
         check(i.init_frames >= 2, "init-frames", i.init_frames, "must be at least 2")?;
         let a = i.init_min_tri_angle;
         check(in_range(a, 0.0, 90.0), "init-min-tri-angle", a, "must lie in [0, 90)")?;
+        let b = i.init_max_tri_angle;
+        check(b.is_finite() && b > a && b <= 180.0, "init-max-tri-angle", b, "must lie in (init-min-tri-angle, 180]")?;
         check(i.init_min_inliers >= 8, "init-min-inliers", i.init_min_inliers, "must be at least 8")?;
         let ft = k.flow_threshold;
         check(ft.is_finite() && (0.0..=1.0).contains(&ft), "flow-threshold", ft, "must lie in [0, 1]")?;

@@ -479,6 +479,33 @@ fn initialization_takes_the_farthest_well_matched_second_frame() {
     scene.assert_exact(&map);
 }
 
+#[test]
+fn initialization_skips_pairs_seen_from_too_far_apart() {
+    let scene = Scene::translating(5);
+    let window = [0, 1, 2, 3, 4];
+    let pm = scene.pair_matches(&window);
+    let frames = scene.frames(&window);
+    let init = |max_angle: f64| {
+        let mut o = opts();
+        o.init.init_max_tri_angle = max_angle;
+        let (map, i, j) =
+            Mapper::initialize(0, &frames, &pm, &scene.camera, &o, &mut StageTimings::default()).unwrap().unwrap();
+        scene.assert_exact(&map);
+        (i, j)
+    };
+    let farthest = init(180.0);
+    assert_eq!(farthest, expected_pair(&pm, 5, opts().init.init_min_inliers));
+    // The farthest pair's median angle, then a bound just below it.
+    let (a, b) = farthest;
+    let matches = &pm[&(a, b)];
+    let angle = two_view(&frames[a], &frames[b], matches, scene.camera.focal_x(), 0, 1000)
+        .and_then(|t| t.median_tri_angle_deg)
+        .unwrap();
+    let nearer = init(0.9 * angle);
+    assert_ne!(nearer, farthest, "a pair wider than the bound is not taken");
+    assert!(nearer.1.abs_diff(nearer.0) < b.abs_diff(a));
+}
+
 /// The true matches of frames `a` to `b` with every third one sent to a
 /// keypoint of `b` more than 20 px off its epipolar line.
 fn corrupted_matches(scene: &Scene, a: usize, b: usize) -> (Vec<Match>, usize) {

@@ -150,6 +150,11 @@ pub struct InitOptions {
     /// COLMAP's 16 degrees suits photo collections; video needs less.
     #[cfg_attr(feature = "cli", arg(long, value_name = "DEGREES", default_value_t = InitOptions::default().init_min_tri_angle))]
     pub init_min_tri_angle: f64,
+    /// Maximum median triangulation angle of the initial pair, degrees, above the minimum (180: no limit).
+    ///
+    /// Photo sets offer pairs 60-80 degrees apart that verify with barely a hundred ORB inliers; a map started from them is worse (strecha entry: 40 helps, herzjesu a little worse, docs/benchmarks.md).
+    #[cfg_attr(feature = "cli", arg(long, value_name = "DEGREES", default_value_t = InitOptions::default().init_max_tri_angle))]
+    pub init_max_tri_angle: f64,
     /// Minimum inlier matches of the initial pair, at least 8.
     #[cfg_attr(feature = "cli", arg(long, value_name = "N", default_value_t = InitOptions::default().init_min_inliers))]
     pub init_min_inliers: usize,
@@ -160,7 +165,13 @@ pub struct InitOptions {
 
 impl Default for InitOptions {
     fn default() -> Self {
-        Self { init_frames: 20, init_min_tri_angle: 2.0, init_min_inliers: 100, init_min_points: 50 }
+        Self {
+            init_frames: 20,
+            init_min_tri_angle: 2.0,
+            init_max_tri_angle: 180.0,
+            init_min_inliers: 100,
+            init_min_points: 50,
+        }
     }
 }
 
@@ -367,6 +378,23 @@ pub const LOCAL_MAP_RATIO: f32 = 0.8;
 /// `isInFrustum`).
 pub const LOCAL_MAP_MIN_VIEW_COS: f64 = 0.5;
 
+/// Points of one keyframe that must project into another (both ways) for
+/// `--match-overlapping` to match the pair: as many as a registration needs
+/// PnP inliers (COLMAP's 30), so a pair that could not hold a pose alone is
+/// not worth its matching time.
+pub const OVERLAP_MIN_POINTS: usize = 30;
+
+/// Largest angle between the two viewing rays of a point for it to count
+/// towards the overlap of two keyframes, degrees: ORB descriptors are not
+/// invariant to stronger perspective change.
+pub const OVERLAP_MAX_VIEW_ANGLE_DEG: f64 = 30.0;
+
+/// Largest Sampson error (pixels) of a match of `--match-overlapping` under
+/// the final poses: tighter than registration's [`VERIFY_MAX_ERROR_PX`],
+/// since the poses are refined by then and wide-baseline pairs of repeated
+/// facades offer wrong matches along the epipolar lines.
+pub const OVERLAP_MAX_ERROR_PX: f64 = 1.5;
+
 /// The most keyframes a covisible local BA varies (`--local-ba-covisible`),
 /// so that a map whose keyframes all see one scene keeps local BA local.
 pub const LOCAL_BA_MAX_COVISIBLE: usize = 30;
@@ -466,6 +494,11 @@ pub struct RefineOptions {
     /// COLMAP registers every image; the model then holds every frame.
     #[cfg_attr(feature = "cli", arg(long))]
     pub refine_all_frames: bool,
+    /// At the end, match each keyframe with up to N overlapping keyframes it was never matched with (0: off).
+    ///
+    /// The final poses say which pairs see the same points (a path that comes back, photos around a building); their verified matches join and lengthen the tracks before the final bundle adjustment.
+    #[cfg_attr(feature = "cli", arg(long, value_name = "N", default_value_t = RefineOptions::default().match_overlapping))]
+    pub match_overlapping: usize,
     /// Rolling-shutter readout time of the camera in seconds, in [0, 1) (0: global shutter), or `auto`.
     ///
     /// From the first row to the last. Observations are moved to their
@@ -481,6 +514,7 @@ impl Default for RefineOptions {
             refine_intrinsics: false,
             localize_all_frames: true,
             refine_all_frames: false,
+            match_overlapping: 0,
             rolling_shutter: RollingShutter::Seconds(0.0),
         }
     }
@@ -611,6 +645,8 @@ impl SlamOptions {
         check(i.init_frames >= 2, "init-frames", i.init_frames, "must be at least 2")?;
         let a = i.init_min_tri_angle;
         check(in_range(a, 0.0, 90.0), "init-min-tri-angle", a, "must lie in [0, 90)")?;
+        let b = i.init_max_tri_angle;
+        check(b.is_finite() && b > a && b <= 180.0, "init-max-tri-angle", b, "must lie in (init-min-tri-angle, 180]")?;
         check(i.init_min_inliers >= 8, "init-min-inliers", i.init_min_inliers, "must be at least 8")?;
         let ft = k.flow_threshold;
         check(ft.is_finite() && (0.0..=1.0).contains(&ft), "flow-threshold", ft, "must lie in [0, 1]")?;

@@ -777,6 +777,9 @@ impl Slam {
         }
         let mut finished = std::mem::take(&mut self.finished);
         for map in &mut finished {
+            if self.opts.refine.match_overlapping > 0 {
+                map.match_overlapping_pairs(&self.frontend, &self.opts, &mut self.timings)?;
+            }
             map.finalize(&self.opts, &mut self.timings)?;
         }
         let kept = self.merge_maps(finished)?;

@@ -96,7 +96,13 @@ fn verified_pair(
         tvg.median_tri_angle_deg
     );
     let motion_ok = matches!(tvg.config, TwoViewConfig::Calibrated | TwoViewConfig::Planar);
-    let angle_ok = tvg.median_tri_angle_deg.is_some_and(|a| a >= opts.init.init_min_tri_angle);
+    // A pair seen from directions far apart shares few reliable matches
+    // (binary descriptors are not invariant to strong perspective change):
+    // its few points would carry the whole map's start
+    // (`--init-max-tri-angle`).
+    let angle_ok = tvg
+        .median_tri_angle_deg
+        .is_some_and(|a| a >= opts.init.init_min_tri_angle && a <= opts.init.init_max_tri_angle);
     let rel = tvg.cam2_from_cam1?;
     if !motion_ok || !angle_ok || tvg.num_inliers < opts.init.init_min_inliers {
         return None;

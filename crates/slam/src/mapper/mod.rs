@@ -14,6 +14,8 @@
 //!   (`localize.rs`);
 //! - keyframe culling after registration (`cull.rs`, `--cull-keyframes`);
 //! - [`Mapper::merge`] (`merge.rs`): joining a second map;
+//! - [`Mapper::match_overlapping_pairs`] (`overlap.rs`): matching the
+//!   keyframe pairs whose views overlap but were never matched, at the end;
 //! - rolling-shutter compensation (`rolling_shutter.rs`).
 
 mod cull;
@@ -21,11 +23,13 @@ pub(crate) mod init;
 mod local_map;
 mod localize;
 mod merge;
+mod overlap;
 mod register;
 pub mod rolling_shutter;
 mod state;
 
 pub use localize::{FrameInliers, Localization};
+pub use overlap::OverlapReport;
 pub use register::{RegisterFailure, Registration};
 pub use state::{Keyframe, Mapper, ORB_LEVEL_SCALE, keypoint_sigmas};
 

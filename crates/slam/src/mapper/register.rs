@@ -126,7 +126,7 @@ impl Mapper {
         }
         let image_id = self.add_keyframe_image(data, pose.cam_from_world, opts)?;
         self.refresh_keyframes(kf_matches.iter().map(|(k, _)| *k))?;
-        self.add_verified_matches(data, image_id, &pose.cam_from_world, &kf_matches, focal)?;
+        self.add_verified_matches(data, image_id, &pose.cam_from_world, &kf_matches, focal, VERIFY_MAX_ERROR_PX)?;
         self.continue_tracks(image_id, &corr, &pose.inlier_mask)?;
         timings.add(Stage::Registration, started.elapsed());
         self.triangulate(image_id, opts, timings)?;
@@ -261,17 +261,18 @@ impl Mapper {
     }
 
     /// Adds the matches to keyframes that agree with the known poses
-    /// (Sampson error within [`VERIFY_MAX_ERROR_PX`]) to the correspondence
-    /// graph.
-    fn add_verified_matches(
+    /// (Sampson error within `max_error_px`; [`VERIFY_MAX_ERROR_PX`] at
+    /// registration) to the correspondence graph.
+    pub(super) fn add_verified_matches(
         &mut self,
         data: &FrameData,
         image_id: ImageId,
         pose: &Rigid3,
         kf_matches: &KeyframeMatches,
         focal: f64,
+        max_error_px: f64,
     ) -> Result<(), SfmError> {
-        let max_sampson = (VERIFY_MAX_ERROR_PX / focal).powi(2);
+        let max_sampson = (max_error_px / focal).powi(2);
         for (k, matches) in kf_matches {
             let kf = &self.keyframes[*k];
             let Some(kf_img) = self.rec.image(kf.image_id) else { continue };

@@ -479,6 +479,33 @@ fn initialization_takes_the_farthest_well_matched_second_frame() {
     scene.assert_exact(&map);
 }
 
+#[test]
+fn initialization_skips_pairs_seen_from_too_far_apart() {
+    let scene = Scene::translating(5);
+    let window = [0, 1, 2, 3, 4];
+    let pm = scene.pair_matches(&window);
+    let frames = scene.frames(&window);
+    let init = |max_angle: f64| {
+        let mut o = opts();
+        o.init.init_max_tri_angle = max_angle;
+        let (map, i, j) =
+            Mapper::initialize(0, &frames, &pm, &scene.camera, &o, &mut StageTimings::default()).unwrap().unwrap();
+        scene.assert_exact(&map);
+        (i, j)
+    };
+    let farthest = init(180.0);
+    assert_eq!(farthest, expected_pair(&pm, 5, opts().init.init_min_inliers));
+    // The farthest pair's median angle, then a bound just below it.
+    let (a, b) = farthest;
+    let matches = &pm[&(a, b)];
+    let angle = two_view(&frames[a], &frames[b], matches, scene.camera.focal_x(), 0, 1000)
+        .and_then(|t| t.median_tri_angle_deg)
+        .unwrap();
+    let nearer = init(0.9 * angle);
+    assert_ne!(nearer, farthest, "a pair wider than the bound is not taken");
+    assert!(nearer.1.abs_diff(nearer.0) < b.abs_diff(a));
+}
+
 /// The true matches of frames `a` to `b` with every third one sent to a
 /// keypoint of `b` more than 20 px off its epipolar line.
 fn corrupted_matches(scene: &Scene, a: usize, b: usize) -> (Vec<Match>, usize) {
@@ -733,6 +760,38 @@ fn tracking_against_the_local_map_continues_the_old_tracks() {
     };
     assert_eq!(run(10), hidden.len(), "every old point it sees");
     assert_eq!(run(0), 0, "without the local map only the reference's points");
+}
+
+#[test]
+fn matching_overlapping_pairs_at_the_end_joins_the_old_tracks() {
+    // Frame 6 comes back near frame 1 but was registered against frame 5
+    // alone; at the end, the keyframes whose views overlap its own are
+    // matched with it and the old tracks continue into it.
+    let (scene, base, hidden) = revisit_scene();
+    let mut o = opts();
+    o.mapper.match_keyframes = 1;
+    o.mapper.match_revisited = 0;
+    let frontend = scene.frontend();
+    let mut registered_map = base.clone();
+    let id = registered(&mut registered_map, &scene, 6, &frontend, &o);
+    let run = |per_keyframe: usize| {
+        let mut map = registered_map.clone();
+        let mut o = o.clone();
+        o.refine.match_overlapping = per_keyframe;
+        let report = map.match_overlapping_pairs(&frontend, &o, &mut StageTimings::default()).unwrap();
+        scene.assert_exact(&map);
+        let seen: BTreeSet<usize> = scene
+            .mapped(&map)
+            .into_iter()
+            .filter(|(_, pid)| map.rec.point3d(*pid).unwrap().track.iter().any(|e| e.image_id == id))
+            .map(|(t, _)| t)
+            .collect();
+        (report.pairs, hidden.iter().filter(|p| seen.contains(p)).count())
+    };
+    let (pairs, seen) = run(5);
+    assert!(pairs >= 3, "frame 6 overlaps frames 0-4: {pairs} pairs matched");
+    assert_eq!(seen, hidden.len(), "every old point it sees");
+    assert_eq!(run(0), (0, 0), "off: no pair matched, only the reference's points");
 }
 
 #[test]

@@ -51,11 +51,6 @@ impl Mapper {
         Ok(culled)
     }
 
-    /// Position of the keyframe of image `id` in [`Self::keyframes`].
-    fn keyframe_position(&self, id: ImageId) -> Option<usize> {
-        self.keyframes.iter().position(|k| k.image_id == id)
-    }
-
     /// The pyramid level of keypoint `idx` of the keyframe of image `id`.
     fn keypoint_level(&self, positions: &HashMap<ImageId, usize>, id: ImageId, idx: u32) -> Option<i32> {
         let kf = &self.keyframes[*positions.get(&id)?];

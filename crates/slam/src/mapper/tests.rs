@@ -722,14 +722,19 @@ fn revisit_scene() -> (Scene, Mapper, Vec<usize>) {
 fn hidden_points_seen(scene: &Scene, base: &Mapper, hidden: &[usize], o: &SlamOptions) -> usize {
     let mut map = base.clone();
     let id = registered(&mut map, scene, 6, &scene.frontend(), o);
+    scene.assert_exact(&map);
+    seen_by(scene, &map, id, hidden)
+}
+
+/// How many of the scene points `of` image `id` of `map` observes.
+fn seen_by(scene: &Scene, map: &Mapper, id: ImageId, of: &[usize]) -> usize {
     let seen: BTreeSet<usize> = scene
-        .mapped(&map)
+        .mapped(map)
         .into_iter()
         .filter(|(_, pid)| map.rec.point3d(*pid).unwrap().track.iter().any(|e| e.image_id == id))
         .map(|(t, _)| t)
         .collect();
-    scene.assert_exact(&map);
-    hidden.iter().filter(|p| seen.contains(p)).count()
+    of.iter().filter(|p| seen.contains(p)).count()
 }
 
 #[test]
@@ -780,13 +785,7 @@ fn matching_overlapping_pairs_at_the_end_joins_the_old_tracks() {
         o.refine.match_overlapping = per_keyframe;
         let report = map.match_overlapping_pairs(&frontend, &o, &mut StageTimings::default()).unwrap();
         scene.assert_exact(&map);
-        let seen: BTreeSet<usize> = scene
-            .mapped(&map)
-            .into_iter()
-            .filter(|(_, pid)| map.rec.point3d(*pid).unwrap().track.iter().any(|e| e.image_id == id))
-            .map(|(t, _)| t)
-            .collect();
-        (report.pairs, hidden.iter().filter(|p| seen.contains(p)).count())
+        (report.pairs, seen_by(&scene, &map, id, &hidden))
     };
     let (pairs, seen) = run(5);
     assert!(pairs >= 3, "frame 6 overlaps frames 0-4: {pairs} pairs matched");

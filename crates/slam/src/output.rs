@@ -79,6 +79,12 @@ pub struct RunReport {
     pub forced_keyframes: usize,
     /// Keyframes deregistered by the point-count check.
     pub deregistered: usize,
+    /// Keyframes culled as redundant (`--cull-keyframes`), all maps; their
+    /// frames are localised like non-keyframes.
+    pub culled_keyframes: usize,
+    /// Keyframe candidates refused for too little rotation-compensated flow
+    /// (`--parallax-threshold`).
+    pub refused_parallax: usize,
     /// Notable events.
     pub notes: Vec<String>,
     /// Per-stage wall times, seconds.
@@ -316,6 +322,8 @@ pub fn write_outputs(
         rejected_rotation: result.stats.rejected_rotation,
         forced_keyframes: result.stats.forced_keyframes,
         deregistered: result.stats.deregistered,
+        culled_keyframes: result.maps.iter().map(|m| m.map.culled_keyframes()).sum(),
+        refused_parallax: result.stats.refused_parallax,
         notes: result.stats.notes.clone(),
         timings_s: result.timings.clone(),
         wall_time_s: 0.0,

@@ -270,6 +270,24 @@ fn a_camera_coming_back_tracks_the_old_keyframes_and_adds_few() {
 }
 
 #[test]
+fn culled_keyframes_are_counted_in_the_report() {
+    // Without map reuse the way back re-maps the same views densely; the
+    // culling removes redundant keyframes and report.json says how many.
+    let (seq, frames) = out_and_back();
+    let mut o = SlamOptions::default();
+    o.mapper.cull_keyframes = true;
+    let r = run(&frames, seq.camera(), o.clone(), EventSink::none());
+    assert!(r.not_localized.is_empty(), "not localised: {:?}", r.not_localized);
+    let culled: usize = r.maps.iter().map(|m| m.map.culled_keyframes()).sum();
+    assert!(culled > 0, "nothing culled");
+    let dir = tempfile::tempdir().expect("tempdir");
+    let report = colslam_slam::output::write_outputs(&r, &dir.path().join("out"), "synthetic", &o, Default::default())
+        .expect("outputs");
+    assert_eq!(report.culled_keyframes, culled);
+    assert_eq!(report.localized, frames.len());
+}
+
+#[test]
 fn a_slow_camera_widens_the_initialisation_window() {
     // The default path over 300 frames: too little motion within the first
     // 20 frames for an initial pair, so the window must span more time.

@@ -690,6 +690,7 @@ impl Slam {
         let State::Tracking(t) = &mut self.state else { return Ok(false) };
         let Some(ref_pos) = t.map.keyframe_position(reference) else { return Ok(false) };
         let (frontend, opts) = (&self.frontend, &self.opts);
+        let culled_before = t.map.culled_keyframes();
         let image_id = match t.map.register_keyframe_from(data, ref_pos, matches, frontend, opts, &mut self.timings)? {
             Registration::Registered(id) => id,
             Registration::Rejected(failure) => {
@@ -725,7 +726,10 @@ impl Slam {
                 iterations: r.iterations,
             });
         }
-        self.emitter.map(&t.map, global.is_some());
+        // A culled keyframe is not in an increment (which only adds and
+        // moves): a full snapshot replaces the consumer's copy without it.
+        let full = global.is_some() || t.map.culled_keyframes() > culled_before;
+        self.emitter.map(&t.map, full);
         Ok(true)
     }
 

@@ -288,6 +288,29 @@ fn culled_keyframes_are_counted_in_the_report() {
 }
 
 #[test]
+fn a_live_view_drops_culled_keyframes() {
+    // Map increments only add and move keyframes: after a cull the next
+    // update must be a full snapshot, or a viewer keeps the culled one.
+    let (seq, frames) = out_and_back();
+    let mut o = SlamOptions::default();
+    o.mapper.cull_keyframes = true;
+    let (sink, rx) = EventSink::channel();
+    let r = run(&frames, seq.camera(), o, sink);
+    assert!(r.maps[0].map.culled_keyframes() > 0, "nothing culled");
+    // The viewer's copy: a full update replaces it, an increment adds to it.
+    let mut shown = std::collections::BTreeSet::new();
+    for e in rx.try_iter() {
+        if let SlamEvent::MapUpdated { full, poses, keyframes, .. } = e {
+            if full {
+                shown.clear();
+            }
+            shown.extend(poses.iter().map(|(id, _, _)| *id));
+            assert_eq!(shown.len(), keyframes, "the viewer shows {} keyframes of {keyframes}", shown.len());
+        }
+    }
+}
+
+#[test]
 fn a_slow_camera_widens_the_initialisation_window() {
     // The default path over 300 frames: too little motion within the first
     // 20 frames for an initial pair, so the window must span more time.

@@ -52,10 +52,11 @@ impl Mapper {
         for (a, b) in pairs {
             let (ka, kb) = (&self.keyframes[a], &self.keyframes[b]);
             let matches = timings.time(Stage::Matching, || frontend.match_frames(&kb.data, &ka.data))?;
-            let (data, image_id) = (kb.data.clone(), kb.image_id);
+            let image_id = kb.image_id;
             let Some(pose) = self.rec.image(image_id).map(|i| i.cam_from_world) else { continue };
+            let verified = self.verified_matches(&kb.data, &pose, &vec![(a, matches)], focal, OVERLAP_MAX_ERROR_PX);
             let before = self.graph.num_correspondences_for_image(image_id);
-            self.add_verified_matches(&data, image_id, &pose, &vec![(a, matches)], focal, OVERLAP_MAX_ERROR_PX)?;
+            self.add_correspondences(image_id, &verified)?;
             report.correspondences += self.graph.num_correspondences_for_image(image_id) - before;
             report.pairs += 1;
             touched.extend([self.keyframes[a].image_id, image_id]);

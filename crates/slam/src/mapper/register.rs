@@ -272,7 +272,23 @@ impl Mapper {
         focal: f64,
         max_error_px: f64,
     ) -> Result<(), SfmError> {
+        let verified = self.verified_matches(data, pose, kf_matches, focal, max_error_px);
+        self.add_correspondences(image_id, &verified)
+    }
+
+    /// For each keyframe of `kf_matches`, the matches (keyframe keypoint,
+    /// frame keypoint) that agree with the known poses: Sampson error within
+    /// `max_error_px`. Reads the map only, so `data` may be a keyframe's own.
+    pub(super) fn verified_matches(
+        &self,
+        data: &FrameData,
+        pose: &Rigid3,
+        kf_matches: &KeyframeMatches,
+        focal: f64,
+        max_error_px: f64,
+    ) -> Vec<(ImageId, Vec<(u32, u32)>)> {
         let max_sampson = (max_error_px / focal).powi(2);
+        let mut out = Vec::with_capacity(kf_matches.len());
         for (k, matches) in kf_matches {
             let kf = &self.keyframes[*k];
             let Some(kf_img) = self.rec.image(kf.image_id) else { continue };
@@ -289,7 +305,20 @@ impl Mapper {
                 })
                 .map(|m| (m.train, m.query))
                 .collect();
-            self.graph.add_correspondences(kf.image_id, image_id, &pairs)?;
+            out.push((kf.image_id, pairs));
+        }
+        out
+    }
+
+    /// Adds [`Self::verified_matches`] of image `image_id` to the
+    /// correspondence graph.
+    pub(super) fn add_correspondences(
+        &mut self,
+        image_id: ImageId,
+        verified: &[(ImageId, Vec<(u32, u32)>)],
+    ) -> Result<(), SfmError> {
+        for (kf_id, pairs) in verified {
+            self.graph.add_correspondences(*kf_id, image_id, pairs)?;
         }
         Ok(())
     }

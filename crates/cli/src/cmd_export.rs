@@ -58,15 +58,19 @@ pub struct ExportArgs {
     /// sequence folder or video, moved) instead of the one report.json names.
     #[arg(long, value_name = "PATH")]
     pub images: Option<PathBuf>,
+    /// nerfstudio and 3dgs: which map of a run that ended with several (0:
+    /// the largest, at the run folder's root; K: the run's maps/K).
+    #[arg(long, value_name = "K", default_value_t = 0)]
+    pub map: usize,
 }
 
 /// Runs `export`. A model folder is written as a whole (the folder holds
 /// the previous model or the new one, never a mix), and its location is
 /// checked and locked before the input model is read.
 pub fn run(args: &ExportArgs, quiet: bool) -> Result<()> {
-    let scene_only = args.images.is_some() || matches!(args.frames, FramesArg::Keyframes);
+    let scene_only = args.images.is_some() || matches!(args.frames, FramesArg::Keyframes) || args.map != 0;
     if scene_only && !matches!(args.format, ExportFormat::Nerfstudio | ExportFormat::Gaussian3d) {
-        anyhow::bail!("--frames and --images apply to -f nerfstudio and -f 3dgs only");
+        anyhow::bail!("--frames, --images and --map apply to -f nerfstudio and -f 3dgs only");
     }
     let read = || colslam_scene::read_model(&args.model);
     match args.format {
@@ -103,6 +107,7 @@ fn export_scene(args: &ExportArgs, format: SceneFormat, quiet: bool) -> Result<(
             FramesArg::Keyframes => FrameSelection::Keyframes,
         },
         images: args.images.clone(),
+        map: args.map,
     };
     let pb = crate::logging::progress_bar(0, quiet, "export", "frames");
     let result = colslam_slam::export::export_scene_with(&req, &mut |p: &ExportProgress<'_>| {

@@ -248,3 +248,32 @@ fn bad_inputs_name_the_file() {
     let err = fails(&["export", s(&run), "-f", "bin", "-o", s(&out), "--frames", "keyframes"]);
     assert!(err.contains("--frames"), "{err}");
 }
+
+/// A run that ended with two maps: `--map 1` exports `maps/1/` (here the
+/// same model with only its keyframes in the trajectory, so the two exports
+/// differ), map 0 stays the default, a map the run lacks is named.
+#[test]
+fn a_second_map_is_exported_with_map() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let (seq, run) = (dir.path().join("seq"), dir.path().join("run"));
+    ok(&["-q", "demo", "--generate-only", "-o", s(&seq), "--frames", "30", "--width", "160", "--height", "120"]);
+    ok(&["-q", "run", s(&seq), "-o", s(&run)]);
+    let second = run.join("maps").join("1");
+    std::fs::create_dir_all(&second).expect("mkdir");
+    for name in ["cameras.bin", "images.bin", "points3D.bin"] {
+        std::fs::copy(run.join(name), second.join(name)).expect("copy");
+    }
+    std::fs::copy(run.join("keyframes.tum"), second.join("trajectory.tum")).expect("copy");
+    let keyframes = localized(&second) as usize;
+
+    let frames = |out: &str| std::fs::read_dir(dir.path().join(out).join("images")).expect("images").count();
+    ok(&["-q", "export", s(&run), "-f", "3dgs", "-o", s(&dir.path().join("m0"))]);
+    ok(&["-q", "export", s(&run), "-f", "3dgs", "-o", s(&dir.path().join("m1")), "--map", "1"]);
+    assert_eq!(frames("m0"), localized(&run) as usize, "map 0 exports every localised frame");
+    assert_eq!(frames("m1"), keyframes, "--map 1 exports maps/1, whose trajectory holds the keyframes only");
+
+    let err = fails(&["export", s(&run), "-f", "3dgs", "-o", s(&dir.path().join("m2")), "--map", "2"]);
+    assert!(err.contains("no map 2") && err.contains("2 map(s)"), "{err}");
+    let err = fails(&["export", s(&run), "-f", "bin", "-o", s(&dir.path().join("m3")), "--map", "1"]);
+    assert!(err.contains("--map"), "{err}");
+}

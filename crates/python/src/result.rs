@@ -150,10 +150,12 @@ impl RunResult {
         path: PathBuf,
         keyframes_only: bool,
         images: Option<PathBuf>,
+        map: usize,
     ) -> PyResult<Bound<'py, PyDict>> {
         let mut req = SceneExport::new(&self.output, path, format);
         req.frames = if keyframes_only { FrameSelection::Keyframes } else { FrameSelection::All };
         req.images = images;
+        req.map = map;
         let summary = py.detach(|| export_scene(&req)).map_err(|e| {
             let kind = match &e {
                 ExportError::Output(_) | ExportError::Write { .. } => Kind::Output,
@@ -308,28 +310,32 @@ impl RunResult {
 
     /// Exports the run for nerfstudio (`transforms.json`, `images/`,
     /// `sparse_pc.ply`) with `colslam export -f nerfstudio`'s library call.
-    #[pyo3(signature = (path, keyframes_only=false, images=None))]
+    /// `map` picks one map of a run that ended with several (0: the largest).
+    #[pyo3(signature = (path, keyframes_only=false, images=None, map=0))]
     fn export_nerfstudio<'py>(
         &self,
         py: Python<'py>,
         path: PathBuf,
         keyframes_only: bool,
         images: Option<PathBuf>,
+        map: usize,
     ) -> PyResult<Bound<'py, PyDict>> {
-        self.export(py, SceneFormat::Nerfstudio, path, keyframes_only, images)
+        self.export(py, SceneFormat::Nerfstudio, path, keyframes_only, images, map)
     }
 
     /// Exports the run for 3D Gaussian splatting (undistorted `images/`, a
     /// PINHOLE model in `sparse/0/`) with `colslam export -f 3dgs`'s library call.
-    #[pyo3(signature = (path, keyframes_only=false, images=None))]
+    /// `map` picks one map of a run that ended with several (0: the largest).
+    #[pyo3(signature = (path, keyframes_only=false, images=None, map=0))]
     fn export_3dgs<'py>(
         &self,
         py: Python<'py>,
         path: PathBuf,
         keyframes_only: bool,
         images: Option<PathBuf>,
+        map: usize,
     ) -> PyResult<Bound<'py, PyDict>> {
-        self.export(py, SceneFormat::Gaussian3d, path, keyframes_only, images)
+        self.export(py, SceneFormat::Gaussian3d, path, keyframes_only, images, map)
     }
 
     fn __len__(&self) -> usize {

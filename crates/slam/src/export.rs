@@ -95,12 +95,16 @@ pub struct SceneExport {
     /// The input to read the images from instead of the one `report.json`
     /// names (the same sequence folder or video, moved).
     pub images: Option<PathBuf>,
+    /// Which map of a run that ended with several: 0 is the largest, the
+    /// model at the run folder's root; `k` is `maps/<k>/`. Maps do not share
+    /// a frame of reference, so an export holds one.
+    pub map: usize,
 }
 
 impl SceneExport {
     /// Every localised frame of `run` into `output`, images from the run's input.
     pub fn new(run: impl Into<PathBuf>, output: impl Into<PathBuf>, format: SceneFormat) -> Self {
-        Self { run: run.into(), output: output.into(), format, frames: FrameSelection::All, images: None }
+        Self { run: run.into(), output: output.into(), format, frames: FrameSelection::All, images: None, map: 0 }
     }
 }
 
@@ -148,6 +152,16 @@ pub enum ExportError {
         path: PathBuf,
         /// The missing file.
         missing: &'static str,
+    },
+    /// The run has no map of the requested index.
+    #[error("{path} has no map {map}: the run ended with {maps} map(s), numbered from 0")]
+    NoSuchMap {
+        /// The run folder.
+        path: PathBuf,
+        /// The requested map.
+        map: usize,
+        /// How many maps the run has.
+        maps: usize,
     },
     /// `report.json` cannot be read or names no input.
     #[error("{path}: {reason}")]
@@ -239,7 +253,7 @@ pub fn export_scene_with(
     req: &SceneExport,
     on_frame: &mut dyn FnMut(&ExportProgress<'_>),
 ) -> Result<ExportSummary, ExportError> {
-    let run = RunFolder::open(&req.run)?;
+    let run = RunFolder::open(&req.run, req.map)?;
     let out = OutputDir::begin(&req.output, &EXPORT_OUTPUT_NAMES)?;
     let input = req.images.clone().unwrap_or_else(|| run.input.clone());
     let camera = CameraPlan::new(&run.camera, req.format)?;
@@ -321,19 +335,35 @@ struct RunFolder {
 }
 
 impl RunFolder {
-    fn open(dir: &Path) -> Result<Self, ExportError> {
-        if !dir.is_dir() {
-            return Err(ExportError::NotARun { path: dir.to_path_buf(), missing: "the folder itself" });
+    /// Map `map` of the run folder `run`: the root's model for 0, else the
+    /// one in `maps/<map>/`; `report.json` is the root's for every map.
+    fn open(run: &Path, map: usize) -> Result<Self, ExportError> {
+        if !run.is_dir() {
+            return Err(ExportError::NotARun { path: run.to_path_buf(), missing: "the folder itself" });
         }
-        for missing in ["report.json", "trajectory.tum"] {
-            if !dir.join(missing).is_file() {
-                return Err(ExportError::NotARun { path: dir.to_path_buf(), missing });
-            }
+        if !run.join("report.json").is_file() {
+            return Err(ExportError::NotARun { path: run.to_path_buf(), missing: "report.json" });
+        }
+        let maps = map_count(run);
+        if map >= maps {
+            return Err(ExportError::NoSuchMap { path: run.to_path_buf(), map, maps });
+        }
+        if map == 0 && maps > 1 {
+            tracing::warn!(
+                "{} holds {maps} maps that do not share a frame of reference: exporting map 0, the largest \
+                 (--map K exports maps/K)",
+                run.display()
+            );
+        }
+        let dir = if map == 0 { run.to_path_buf() } else { run.join("maps").join(map.to_string()) };
+        let dir = dir.as_path();
+        if !dir.join("trajectory.tum").is_file() {
+            return Err(ExportError::NotARun { path: dir.to_path_buf(), missing: "trajectory.tum" });
         }
         if !dir.join("cameras.bin").is_file() && !dir.join("cameras.txt").is_file() {
             return Err(ExportError::NotARun { path: dir.to_path_buf(), missing: "the model (cameras.bin)" });
         }
-        let report = dir.join("report.json");
+        let report = run.join("report.json");
         let bad = |reason: String| ExportError::Report { path: report.clone(), reason };
         let text = std::fs::read(&report).map_err(|e| bad(format!("cannot be read: {e}")))?;
         let json: serde_json::Value =
@@ -369,6 +399,12 @@ impl RunFolder {
             .ok_or_else(|| ExportError::Camera { path: dir.to_path_buf(), reason: format!("no camera {camera_id}") })?;
         Ok(Self { rec, camera_id, camera, keyframes, trajectory, input })
     }
+}
+
+/// How many maps a run folder holds: the root's and those in `maps/<k>/`
+/// (numbered 1.. without gaps, as the run writes them).
+fn map_count(run: &Path) -> usize {
+    (1..).find(|k: &usize| !run.join("maps").join(k.to_string()).is_dir()).unwrap_or(1)
 }
 
 /// A frame's pose in the export.

@@ -61,10 +61,18 @@ class Result:
     def to_pycolmap(self) -> Any:  # pycolmap.Reconstruction
         ...
     def export_nerfstudio(
-        self, path: _Path, keyframes_only: bool = False, images: Optional[_Path] = None
+        self,
+        path: _Path,
+        keyframes_only: bool = False,
+        images: Optional[_Path] = None,
+        map: int = 0,
     ) -> Dict[str, Any]: ...
     def export_3dgs(
-        self, path: _Path, keyframes_only: bool = False, images: Optional[_Path] = None
+        self,
+        path: _Path,
+        keyframes_only: bool = False,
+        images: Optional[_Path] = None,
+        map: int = 0,
     ) -> Dict[str, Any]: ...
     def __len__(self) -> int: ...
 

@@ -4,14 +4,17 @@
 //! Two-view self-calibration (the focal length that makes `K^T F K` an
 //! essential matrix) is degenerate for object-centred photo sets and a
 //! car's planar motion (Sturm's critical motions; docs/history.md), so the
-//! estimate is a one-dimensional search scored by what a small multi-view
-//! reconstruction makes of the first frames with the focal length fixed at
-//! each candidate: how many frames one map localises and how many
-//! observations it keeps under the mapper's reprojection filters. A wrong
-//! focal length bends the multi-view geometry, so tracks break, points are
-//! filtered and frames drop out. The global refinements then refine the
-//! focal length from the winner (a bundle adjustment with the focal free;
-//! COLMAP's self-calibration does the same from its prior).
+//! estimate is a one-dimensional search over a multi-view map of the first
+//! frames: the pipeline maps them at a starting focal length, and each
+//! candidate is scored by the cost of a bundle adjustment of that map's
+//! poses and points with the focal length fixed at it. Scoring each
+//! candidate by its own map instead is biased: the mapper's
+//! triangulation-angle threshold is in degrees, so a short focal length
+//! turns the same pixels into wider angles and keeps more points. The
+//! curvature of the cost says whether the frames constrain the focal
+//! length at all (forward motion does not). The run's global refinements
+//! then refine the focal length from the estimate, as COLMAP's
+//! self-calibration refines its prior.
 
 use crate::error::SlamError;
 use crate::events::EventSink;
@@ -115,20 +118,21 @@ const FINE_GRID: [f64; 5] = [0.841, 0.917, 1.0, 1.091, 1.189];
 /// The search stops once a round moves the focal length by less than this
 /// ratio; else the frames are mapped again with the new value, since a map
 /// made with a wrong focal length keeps observations that favour it (each
-/// round removes most of the remaining error on the synthetic room).
+/// round removes most of the remaining error).
 const CONVERGED_RATIO: f64 = 1.02;
 
 /// Rounds of the search at most (the coarse one included).
 const MAX_ROUNDS: usize = 4;
 
 /// Below this [`FocalEstimate::sharpness`] the first frames do not
-/// constrain the focal length (the KITTI clip's forward motion: 0.0000;
-/// TUM fr1/rpy 0.09, Strecha fountain 0.79).
+/// constrain the focal length: a forward-moving car's camera lies far
+/// below it, hand-held and object-centred sets far above
+/// (docs/benchmarks.md, "The focal length searched from the first frames").
 pub const MIN_SHARPNESS: f64 = 0.01;
 
 /// A map of the first frames with fewer keyframes is too small to judge
-/// whether they constrain the focal length (the synthetic room's first 60
-/// frames make 3 keyframes and a flat cost that the whole run sharpens).
+/// whether they constrain the focal length: a slow start makes a few
+/// keyframes whose cost is flat although the whole run constrains it.
 pub const MIN_JUDGED_KEYFRAMES: usize = 5;
 
 impl FocalEstimate {

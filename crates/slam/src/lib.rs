@@ -25,6 +25,7 @@
 //! every frame, new maps after a loss and their merging, rolling-shutter
 //! compensation.
 
+pub mod calibrate;
 pub mod error;
 pub mod events;
 pub mod export;

@@ -34,7 +34,7 @@ const PREFETCH_FRAMES: usize = 4;
 
 /// Where the camera comes from. Without any, a camera file beside the input
 /// is used, else the focal length is guessed and refined.
-#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[cfg_attr(feature = "cli", derive(clap::Args))]
 #[cfg_attr(feature = "cli", command(next_help_heading = "Camera"))]
 #[serde(default, deny_unknown_fields)]
@@ -50,16 +50,39 @@ pub struct CameraOptions {
     /// Kept as given; --refine-intrinsics refines it by bundle adjustment.
     #[cfg_attr(feature = "cli", arg(long, value_name = "PIXELS", conflicts_with_all = ["camera", "preset"]))]
     pub focal: Option<f64>,
+    /// Without any calibration, estimate the focal length from this many first frames (0: guess it as 1.2 times the larger image side and refine it).
+    ///
+    /// Off by default: where the first frames constrain the focal length, refining the guess by bundle
+    /// adjustment ends as close and costs less; where they do not (forward motion), the guess is kept fixed.
+    #[cfg_attr(feature = "cli", arg(long, value_name = "N", default_value_t = DEFAULT_FOCAL_SEARCH_FRAMES))]
+    pub focal_search_frames: usize,
 }
+
+impl Default for CameraOptions {
+    fn default() -> Self {
+        Self { camera: None, preset: None, focal: None, focal_search_frames: DEFAULT_FOCAL_SEARCH_FRAMES }
+    }
+}
+
+/// Frames the focal-length search of an uncalibrated run reconstructs
+/// ([`crate::calibrate`]).
+pub const DEFAULT_FOCAL_SEARCH_FRAMES: usize = 0;
 
 impl CameraOptions {
     /// Whether bundle adjustment refines the intrinsics of a camera from
-    /// `source`: with `--refine-intrinsics`, and always for a guess. A
+    /// `source`: with `--refine-intrinsics`, always for a guess, and for an
+    /// estimate when the first frames constrained it (else it runs away
+    /// under forward motion, as the guess does on the KITTI clip). A
     /// measured focal length (`--focal`, EXIF) is kept: refined from the
     /// first keyframes it runs away on the KITTI clip (984 to 22825 px, 40
     /// of 268 frames; docs/history.md).
     pub fn refines(&self, source: &CameraSource, refine_intrinsics: bool) -> bool {
-        refine_intrinsics || *source == CameraSource::Guessed
+        refine_intrinsics
+            || match source {
+                CameraSource::Guessed => true,
+                CameraSource::Estimated { estimate } => !estimate.unconstrained(),
+                _ => false,
+            }
     }
 }
 
@@ -202,7 +225,7 @@ fn preset_camera(name: &str) -> Result<Camera, SlamError> {
 }
 
 /// Where a run's camera came from (reported in `report.json`).
-#[derive(Debug, Clone, PartialEq, Eq, serde::Serialize)]
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
 #[serde(tag = "kind", rename_all = "snake_case")]
 pub enum CameraSource {
     /// `--camera FILE`.
@@ -232,6 +255,16 @@ pub enum CameraSource {
     /// No calibration: the focal length is [`DEFAULT_FOCAL_FACTOR`] times the
     /// larger image side, refined by bundle adjustment.
     Guessed,
+    /// No calibration (`--focal-search-frames N`): the focal length
+    /// estimated from the first frames ([`crate::calibrate`]), principal
+    /// point at the centre, refined by bundle adjustment; when the frames
+    /// do not constrain it, the guess kept fixed; when their map is too
+    /// small to judge, the guess refined.
+    Estimated {
+        /// The estimate and the candidates scored.
+        #[serde(flatten)]
+        estimate: crate::calibrate::FocalEstimate,
+    },
 }
 
 /// The camera of a run and where it came from.
@@ -249,7 +282,7 @@ impl CameraSource {
     /// A focal length that is only a prior (given, read from EXIF or
     /// guessed), not a calibration.
     pub fn is_prior(&self) -> bool {
-        matches!(self, Self::Focal | Self::Exif { .. } | Self::Guessed)
+        matches!(self, Self::Focal | Self::Exif { .. } | Self::Guessed | Self::Estimated { .. })
     }
 }
 
@@ -295,8 +328,7 @@ pub fn resolve_camera(
         return Err(SlamError::Path { path: input.to_path_buf(), reason });
     };
     // OpenCV convention: the centre of a w-pixel row is at (w - 1) / 2.
-    let centred =
-        |f: f64| Camera::simple_pinhole(w as u64, h as u64, f, (w as f64 - 1.0) / 2.0, (h as f64 - 1.0) / 2.0);
+    let centred = |f: f64| crate::calibrate::centred_camera(w as u32, h as u32, f);
     if opts.focal.is_none()
         && let Some(path) = source.first_image()
         && let Some((f, kind)) = exif::read_exif_focal(path).and_then(|e| e.focal_px(w, h))
@@ -318,7 +350,13 @@ pub fn resolve_camera(
     let guessed = opts.focal.is_none();
     let f = opts.focal.unwrap_or(DEFAULT_FOCAL_FACTOR * w.max(h) as f64);
     let camera = centred(f);
-    if guessed {
+    if guessed && opts.focal_search_frames > 0 {
+        tracing::warn!(
+            "no calibration: the focal length will be estimated from the first {} frames (principal point at the \
+             centre); give --camera, --preset or --focal for a known camera",
+            opts.focal_search_frames
+        );
+    } else if guessed {
         tracing::warn!(
             "no calibration: focal length guessed as {f:.1} px (principal point at the centre); give --camera, \
              --preset or --focal for a known camera"
@@ -443,8 +481,9 @@ pub fn run(config: &RunConfig, events: EventSink, mut hooks: RunHooks<'_>) -> Re
         // process), which keeps the first setting.
         let _ = rayon::ThreadPoolBuilder::new().num_threads(opts.threads).build_global();
     }
-    let source = open_source(&config.input, &opts.source())?;
-    let resolved = resolve_camera(&config.camera, &config.input, source.as_ref())?;
+    let mut source = open_source(&config.input, &opts.source())?;
+    let mut resolved = resolve_camera(&config.camera, &config.input, source.as_ref())?;
+    let prefix = estimate_camera(&mut resolved, config, source.as_mut(), &hooks)?;
     let mut slam_opts = opts.slam.clone();
     apply_file_readout(&resolved, &mut slam_opts);
     // A focal length that is only a prior is refined by bundle adjustment.
@@ -462,7 +501,7 @@ pub fn run(config: &RunConfig, events: EventSink, mut hooks: RunHooks<'_>) -> Re
     if let Some(f) = hooks.on_start.as_mut() {
         f(&RunStart { camera: resolved.camera.clone(), frames: source.len_hint(), description: source.describe() });
     }
-    let fed = feed(&mut slam, source, &mut hooks)?;
+    let fed = feed(&mut slam, prefix, source, &mut hooks)?;
     // A run that read nothing has nothing to write: empty outputs and a zero
     // exit status would hide that every frame failed.
     if fed.processed == 0 && fed.stopped_after.is_none() {
@@ -482,6 +521,80 @@ pub fn run(config: &RunConfig, events: EventSink, mut hooks: RunHooks<'_>) -> Re
         RunEnd { options: &slam_opts, stopped_after, camera_source: resolved.source.clone(), focal_start, started };
     let report = publish(output, config, &end, &mut result)?;
     Ok(RunOutput { report, result })
+}
+
+/// Without calibration (a guessed focal length) and with
+/// `--focal-search-frames N` above 0, reads and extracts the first N frames
+/// and estimates the focal length from them ([`crate::calibrate`]); the
+/// camera becomes the estimate. Returns the frames read, for the pipeline
+/// to process first. A stop requested meanwhile leaves the guess.
+fn estimate_camera(
+    resolved: &mut ResolvedCamera,
+    config: &RunConfig,
+    source: &mut dyn FrameSource,
+    hooks: &RunHooks<'_>,
+) -> Result<Vec<Extracted>, SlamError> {
+    let n = config.camera.focal_search_frames;
+    if !resolved.guessed() || n == 0 {
+        return Ok(Vec::new());
+    }
+    let frontend = crate::frontend::Frontend::new(&config.options.slam.frontend, &resolved.camera)?;
+    let mut prefix = Vec::new();
+    let mut frames = Vec::new();
+    while frames.len() < n && !hooks.cancelled() {
+        let t = Instant::now();
+        let Some(next) = source.next() else { break };
+        let decode = t.elapsed();
+        match next {
+            Ok(frame) => {
+                let t = Instant::now();
+                let data = frontend.process(&frame);
+                if let Ok(d) = &data {
+                    frames.push(d.clone());
+                }
+                prefix.push(Extracted::Frame(Box::new(ExtractedFrame { frame, data, decode, features: t.elapsed() })));
+            }
+            Err(e) => prefix.push(Extracted::Skipped { error: crate::error::error_chain(&e), decode }),
+        }
+    }
+    if hooks.cancelled() {
+        return Ok(prefix);
+    }
+    let (w, h) = (resolved.camera.width as u32, resolved.camera.height as u32);
+    let t = Instant::now();
+    let start = resolved.camera.focal_x();
+    let estimate = crate::calibrate::estimate_focal(&frames, w, h, start, &config.options.slam)?;
+    let Some(estimate) = estimate else {
+        tracing::warn!("focal search: no candidate made a map of the first {} frames; keeping the guess", frames.len());
+        return Ok(prefix);
+    };
+    if estimate.unconstrained() {
+        tracing::warn!(
+            "focal search: the first {} frames do not constrain the focal length (sharpness {:.4}: a forward or \
+             planar motion); it is kept at the guess {start:.1} px and not refined; give --focal or --camera",
+            frames.len(),
+            estimate.sharpness
+        );
+    } else if !estimate.constrained() {
+        tracing::warn!(
+            "focal search: the map of the first {} frames is too small to judge the estimate ({} keyframes); the \
+             guess {start:.1} px is refined by bundle adjustment",
+            frames.len(),
+            estimate.keyframes
+        );
+    } else {
+        tracing::info!(
+            "camera: focal {:.1} px estimated from the first {} frames in {:.1} s (sharpness {:.4}; principal point at \
+             the centre)",
+            estimate.focal_px,
+            frames.len(),
+            t.elapsed().as_secs_f64(),
+            estimate.sharpness
+        );
+        resolved.camera = crate::calibrate::centred_camera(w, h, estimate.focal_px);
+    }
+    resolved.source = CameraSource::Estimated { estimate };
+    Ok(prefix)
 }
 
 /// Says so, in the log and the report's notes, when a camera without
@@ -553,7 +666,7 @@ fn publish(
         report.notes.push(format!("stopped on request after {n} frames"));
     }
     report.stopped_after = end.stopped_after;
-    report.camera_guessed = end.camera_source == CameraSource::Guessed;
+    report.camera_guessed = matches!(end.camera_source, CameraSource::Guessed | CameraSource::Estimated { .. });
     report.camera_source = Some(end.camera_source.clone());
     report.intrinsics = intrinsics_summary(end, &report);
     report.timings_s = result.timings.clone();
@@ -580,7 +693,12 @@ fn evaluate(gt: &Path, out: &Path, target: &Path) -> Result<colslam_eval::EvalRe
 /// their own, so the second core has work while the mapper runs its serial
 /// parts; features are the same as on one thread, so the output is too.
 /// Returns how many frames were processed and skipped, and whether a stop was requested.
-fn feed(slam: &mut Slam, mut source: Box<dyn FrameSource>, hooks: &mut RunHooks<'_>) -> Result<Fed, SlamError> {
+fn feed(
+    slam: &mut Slam,
+    prefix: Vec<Extracted>,
+    mut source: Box<dyn FrameSource>,
+    hooks: &mut RunHooks<'_>,
+) -> Result<Fed, SlamError> {
     let frontend = slam.frontend();
     std::thread::scope(|scope| {
         let (tx, rx) = std::sync::mpsc::sync_channel::<Extracted>(PREFETCH_FRAMES);
@@ -603,7 +721,7 @@ fn feed(slam: &mut Slam, mut source: Box<dyn FrameSource>, hooks: &mut RunHooks<
                 }
             }
         });
-        let fed = consume(slam, &rx, hooks);
+        let fed = consume(slam, prefix.into_iter().chain(rx.iter()), hooks);
         drop(rx);
         producer.join().map_err(|_| SlamError::ReaderPanicked)?;
         fed
@@ -626,11 +744,11 @@ struct Fed {
 /// The mapper's side of [`feed`].
 fn consume(
     slam: &mut Slam,
-    rx: &std::sync::mpsc::Receiver<Extracted>,
+    items: impl Iterator<Item = Extracted>,
     hooks: &mut RunHooks<'_>,
 ) -> Result<Fed, SlamError> {
     let mut fed = Fed::default();
-    for item in rx.iter() {
+    for item in items {
         if hooks.cancelled() {
             fed.stopped_after = Some(fed.processed);
             return Ok(fed);

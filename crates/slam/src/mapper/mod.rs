@@ -24,6 +24,7 @@ mod local_map;
 mod localize;
 mod merge;
 mod overlap;
+mod probe;
 mod register;
 pub mod rolling_shutter;
 mod state;

@@ -129,8 +129,13 @@ impl Mapper {
         self.add_verified_matches(data, image_id, &pose.cam_from_world, &kf_matches, focal, VERIFY_MAX_ERROR_PX)?;
         self.continue_tracks(image_id, &corr, &pose.inlier_mask)?;
         timings.add(Stage::Registration, started.elapsed());
+        let registered = self.probe_registered(image_id, data.index());
         self.triangulate(image_id, opts, timings)?;
+        let triangulated = registered.map(|points| self.probe_triangulated(image_id, data.index(), &points));
         self.local_refine(image_id, data.index(), opts, timings)?;
+        if let Some(points) = triangulated {
+            self.probe_refined(image_id, data.index(), points);
+        }
         let kept = self.rec.image(image_id).map_or(0, Image::num_points3d);
         if kept < opts.mapper.min_keyframe_points {
             self.deregister(image_id)?;
@@ -388,7 +393,9 @@ impl Mapper {
         // normalised with would follow its noise; global refinement refines
         // them.
         let bundle = self.local_bundle(image_id, opts);
+        self.log_local_ba_probe("before", frame, &bundle);
         let ba = timings.time(Stage::LocalBa, || adjust_local_bundle(&mut self.rec, &bundle, false, &ba_opts))?;
+        self.log_local_ba_probe("after", frame, &bundle);
         tracing::debug!(
             "frame {frame}: local BA cost {:.4e} -> {:.4e} in {} iterations ({:?}), {} variable poses",
             ba.initial_cost,

@@ -242,6 +242,7 @@ impl Mapper {
     ) -> Result<colslam_optim::BaReport, SfmError> {
         let ba = opts.mapper.global_ba(tolerance);
         let refine = opts.refine.refine_intrinsics;
+        self.log_global_probe("before");
         let report = timings.time(Stage::GlobalBa, || adjust_global(&mut self.rec, refine, &ba))?;
         self.intrinsics_refined(opts);
         tracing::debug!(
@@ -260,6 +261,7 @@ impl Mapper {
         let removed = self.filter(None, opts)?;
         tracing::debug!("map {}: global filter removed {removed} points, {} left", self.index, self.rec.num_points3d());
         self.last_global = (self.rec.num_registered_images(), self.rec.num_points3d());
+        self.log_global_probe("after");
         Ok(report)
     }
 

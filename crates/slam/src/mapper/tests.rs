@@ -1390,3 +1390,56 @@ fn refresh_keyframes_renormalizes_only_stale_keyframes() {
 // ----- keyframe culling (tests/cull.rs) -----------------------------------------
 
 mod cull;
+
+// ----- scale probes (issue 20 diagnostics) ----------------------------------
+
+#[test]
+fn scale_probe_reports_the_keyframe_centres_and_gauge_free_point_statistics() {
+    let (scene, frontend, mut map) = before_frame_5();
+    let id = registered(&mut map, &scene, 5, &frontend, &opts());
+    let truths = scene.point_truths(&map);
+    let seen: Vec<(Point3DId, usize)> = truths
+        .iter()
+        .copied()
+        .filter(|(pid, _)| map.rec.point3d(*pid).unwrap().track.iter().any(|e| e.image_id == id))
+        .collect();
+    let ids: Vec<Point3DId> = seen.iter().map(|s| s.0).collect();
+    let probe = map.scale_probe(id, 5, &ids).expect("the keyframe is in the map");
+    // The new keyframe first, then the others newest first, at the map's centres.
+    let centre = |f: usize| map.rec.image(image_of(&map, f)).unwrap().cam_from_world.center();
+    assert_eq!(probe.centres, vec![(5, centre(5)), (4, centre(4)), (0, centre(0))]);
+    assert_eq!(probe.points, ids.len());
+    // Depth over baseline and the triangulation angle do not depend on the
+    // map's gauge: the truth gives the same medians.
+    let true_centre = |f: usize| scene.poses[f].center();
+    let baseline = (true_centre(5) - true_centre(4)).norm();
+    let mut depths = Vec::new();
+    let mut angles = Vec::new();
+    for (pid, t) in &seen {
+        let xyz = scene.points[*t];
+        depths.push(scene.poses[5].transform_point(&xyz).z / baseline);
+        let frames: Vec<usize> = map
+            .rec
+            .point3d(*pid)
+            .unwrap()
+            .track
+            .iter()
+            .map(|e| map.keyframes.iter().find(|k| k.image_id == e.image_id).unwrap().data.index())
+            .collect();
+        let mut best = 0.0f64;
+        for (i, a) in frames.iter().enumerate() {
+            for b in &frames[i + 1..] {
+                best = best.max(colslam_scene::reconstruction::triangulation_angle(
+                    &true_centre(*a),
+                    &true_centre(*b),
+                    &xyz,
+                ));
+            }
+        }
+        angles.push(best.to_degrees());
+    }
+    let median = |v: &[f64]| colslam_geometry::stats::median_finite(v).unwrap();
+    assert!((probe.median_depth_over_baseline - median(&depths)).abs() < 1e-6, "{probe:?}");
+    assert!((probe.median_angle_deg - median(&angles)).abs() < 1e-6, "{probe:?}");
+    assert!(probe.median_angle_deg > 0.0 && probe.median_depth_over_baseline > 0.0, "{probe:?}");
+}

@@ -304,7 +304,8 @@ pub struct MapperOptions {
     /// the initial pair's, never the newest) whose 3D points are more than
     /// 90 % seen by at least three other keyframes at the same or a finer
     /// scale leaves the map; its frame is localised at the end like any
-    /// other frame.
+    /// other frame. Once tracking ends, every keyframe is checked the same
+    /// way (the newest and those outside every later bundle included).
     #[cfg_attr(feature = "cli", arg(long))]
     pub cull_keyframes: bool,
 }

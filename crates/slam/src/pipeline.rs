@@ -584,6 +584,14 @@ impl Slam {
         }
         self.emitter.frame(&data, frame_flow, flow.score, became);
         if became {
+            tracing::debug!(
+                "frame {}: keyframe ({}) against keyframe {}: {} matches, flow {:.4}",
+                data.index(),
+                if decision.candidate { "candidate" } else { "forced" },
+                kf_id.0,
+                matches.len(),
+                flow.score
+            );
             if let Some(t) = self.tracking() {
                 t.lost = 0;
             }
@@ -648,6 +656,7 @@ impl Slam {
             return Ok(false);
         }
         self.stats.forced_keyframes += 1;
+        tracing::debug!("frame {}: keyframe (previous frame forced) against keyframe {}", prev.index(), reference.0);
         if let Some(r) = self.tracking().and_then(|t| t.map.record_mut(rec_idx)) {
             r.promoted = true;
         }
@@ -781,6 +790,10 @@ impl Slam {
         }
         let mut finished = std::mem::take(&mut self.finished);
         for map in &mut finished {
+            if self.opts.mapper.cull_keyframes {
+                let n = map.cull_all_keyframes()?;
+                tracing::debug!("map {}: {n} keyframes culled at the end", map.index());
+            }
             if self.opts.refine.match_overlapping > 0 {
                 map.match_overlapping_pairs(&self.frontend, &self.opts, &mut self.timings)?;
             }

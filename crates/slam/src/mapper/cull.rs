@@ -31,11 +31,27 @@ impl Mapper {
     /// many were culled. Candidates are checked in the bundle's order, each
     /// against the map as the previous culls left it.
     pub(super) fn cull_keyframes(&mut self, image_id: ImageId, opts: &SlamOptions) -> Result<usize, SfmError> {
+        let bundle: Vec<ImageId> = self.local_bundle(image_id, opts).into_iter().filter(|&id| id != image_id).collect();
+        self.cull_among(bundle)
+    }
+
+    /// Culls the redundant keyframes of the whole map, oldest first, once
+    /// tracking ended: culling after each registration only sees the local
+    /// bundle of the newest keyframe, so the last keyframes of a revisit
+    /// (no newer keyframe's bundle holds them) and old keyframes outside
+    /// every later bundle are never checked otherwise. Returns how many were
+    /// culled.
+    pub fn cull_all_keyframes(&mut self) -> Result<usize, SfmError> {
+        let all: Vec<ImageId> = self.keyframes.iter().map(|k| k.image_id).collect();
+        self.cull_among(all)
+    }
+
+    /// Culls the redundant keyframes among `ids` (never the initial pair's),
+    /// each checked against the map as the previous culls left it.
+    fn cull_among(&mut self, ids: Vec<ImageId>) -> Result<usize, SfmError> {
         let (first, second) = self.initial_frames;
-        let candidates: Vec<ImageId> = self
-            .local_bundle(image_id, opts)
+        let candidates: Vec<ImageId> = ids
             .into_iter()
-            .filter(|&id| id != image_id)
             .filter(|&id| {
                 self.keyframe_position(id).is_some_and(|k| ![first, second].contains(&self.keyframes[k].data.index()))
             })

@@ -131,3 +131,35 @@ fn registration_with_culling_keeps_fewer_keyframes_and_every_frame() {
         assert!(err < RECORD_ROUNDING_TOL, "frame {} is {err:e} off", p.frame.index);
     }
 }
+
+#[test]
+fn culling_at_the_end_checks_every_keyframe_the_newest_included() {
+    // Culling after a registration checks the newest keyframe's local bundle
+    // only and never the newest itself; the pass at the end of tracking
+    // checks every keyframe, and every frame keeps its pose.
+    let scene = Scene::translating(12);
+    let build = || {
+        let mut map = scene.exact_map(0, &(0..12).collect::<Vec<_>>());
+        map.initial_frames = (0, 1);
+        map
+    };
+    let mut bundle = build();
+    let newest = image_of(&bundle, 11);
+    let in_bundle = bundle.cull_keyframes(newest, &cull_opts()).unwrap();
+    assert!(frames_of(&bundle).contains(&11));
+    let mut map = build();
+    let culled = map.cull_all_keyframes().unwrap();
+    let kept = frames_of(&map);
+    assert!(culled > in_bundle, "culled {culled} at the end, {in_bundle} in the bundle: {kept:?} left");
+    assert!(kept.contains(&0) && kept.contains(&1), "the initial pair stays: {kept:?}");
+    assert_eq!(map.culled_keyframes(), culled);
+    assert_consistent(&map);
+    let loc = map.localize_all(&opts(), &mut StageTimings::default()).unwrap();
+    let got: Vec<(usize, bool)> = loc.poses.iter().map(|p| (p.frame.index, p.keyframe)).collect();
+    let expected: Vec<(usize, bool)> = (0..12).map(|f| (f, kept.contains(&f))).collect();
+    assert_eq!(got, expected, "failed: {:?}", loc.failed);
+    for p in &loc.poses {
+        let err = pose_error(&Sim3::identity(), &p.cam_from_world, &scene.poses[p.frame.index]);
+        assert!(err < RECORD_ROUNDING_TOL, "frame {} is {err:e} off", p.frame.index);
+    }
+}

@@ -33,7 +33,7 @@ use crate::frontend::Frontend;
 use crate::options::{GlobalBaTolerance, SlamOptions, VERIFY_MAX_ERROR_PX};
 use crate::timing::{Stage, StageTimings};
 use colslam_features::{BowVector, Descriptors, PlaceIndex, Vocabulary, VocabularyOptions, bow_score};
-use colslam_geometry::{Quat, Sim3, Vec3};
+use colslam_geometry::{Quat, Sim3, Vec2, Vec3};
 use colslam_scene::reconstruction::transform_cam_from_world;
 use colslam_scene::{ImageId, Point3DId};
 use colslam_sfm::bundle::covisible_images;
@@ -59,6 +59,9 @@ const LOOP_NEIGHBOUR_MIN_SHARED: usize = 15;
 const LOOP_MATCH_GROUP: usize = 4;
 /// Sim(3) inliers a loop needs (ORB-SLAM: 40 after guided matching).
 pub const LOOP_MIN_INLIERS: usize = 40;
+/// Reprojection threshold (px) of the check in the new keyframe (ORB-SLAM:
+/// chi-square 9.21 at unit sigma, about 3 px at the finest level).
+const LOOP_MAX_REPROJ_PX: f64 = 4.0;
 /// New keyframes after a closure before the next loop is looked for.
 const LOOP_GAP_KEYFRAMES: usize = 10;
 
@@ -149,7 +152,7 @@ impl Mapper {
         }
         for (candidate, score) in candidates {
             let Some(found) = self.verify_loop(image_id, candidate, score, frontend, opts, timings)? else { continue };
-            let closure = self.apply_loop(image_id, &found, opts, timings)?;
+            let closure = self.apply_loop(image_id, &found, frontend, opts, timings)?;
             tracing::info!(
                 "map {}: loop closed, frame {} to frame {} ({} inliers, scale {:.3}, {:.1} deg, {} keyframes corrected)",
                 self.index,
@@ -267,8 +270,16 @@ impl Mapper {
         if pairs.len() < LOOP_MIN_INLIERS {
             return Ok(None);
         }
-        let Some(sim) = similarity(self, &pairs, opts.seed ^ u64::from(image_id.0)) else { return Ok(None) };
-        let inliers: Vec<Pair> = pairs.into_iter().filter(|p| is_inlier(self, &sim, p)).collect();
+        let one_way: Vec<Pair> = pairs.iter().map(|(p, _)| p.clone()).collect();
+        let Some(sim) = similarity(self, &one_way, opts.seed ^ u64::from(image_id.0)) else { return Ok(None) };
+        // Both ways, as ORB-SLAM's Sim(3) check: the old point must also
+        // reproject into the new keyframe where its match was seen.
+        let back = sim.inverse();
+        let inliers: Vec<Pair> = pairs
+            .into_iter()
+            .filter(|(p, px)| is_inlier(self, &sim, p) && self.reprojects(image_id, &back.transform_point(&p.target_xyz), px))
+            .map(|(p, _)| p)
+            .collect();
         tracing::debug!("map {}: loop candidate {candidate:?}: {} Sim(3) inliers", self.index, inliers.len());
         if inliers.len() < LOOP_MIN_INLIERS {
             return Ok(None);
@@ -278,7 +289,12 @@ impl Mapper {
 
     /// The 3D-3D correspondences of matches (query: keyframe `source`,
     /// train: keyframe `target`) between distinct points.
-    fn point_pairs(&self, source: ImageId, target: ImageId, matches: &[colslam_features::Match]) -> Vec<Pair> {
+    fn point_pairs(
+        &self,
+        source: ImageId,
+        target: ImageId,
+        matches: &[colslam_features::Match],
+    ) -> Vec<(Pair, Vec2)> {
         let (Some(si), Some(ti)) = (self.rec.image(source), self.rec.image(target)) else { return Vec::new() };
         let point = |img: &colslam_scene::Image, kp: u32| {
             let p2 = img.points2d.get(kp as usize)?;
@@ -288,18 +304,28 @@ impl Mapper {
         matches
             .iter()
             .filter_map(|m| {
-                let (sp, sx, _) = point(si, m.query)?;
+                let (sp, sx, spx) = point(si, m.query)?;
                 let (tp, tx, px) = point(ti, m.train)?;
-                (sp != tp).then_some(Pair {
+                let pair = Pair {
                     source_point: sp,
                     target_point: tp,
                     source_xyz: sx,
                     target_xyz: tx,
                     target_image: target,
                     target_pixel: px,
-                })
+                };
+                (sp != tp).then_some((pair, spx))
             })
             .collect()
+    }
+
+    /// True when `xyz` projects into image `image` within
+    /// [`LOOP_MAX_REPROJ_PX`] of `pixel`.
+    fn reprojects(&self, image: ImageId, xyz: &Vec3, pixel: &Vec2) -> bool {
+        let Some(img) = self.rec.image(image) else { return false };
+        let Some(cam) = self.rec.camera(img.camera_id) else { return false };
+        let x = img.cam_from_world.transform_point(xyz);
+        x.z > 0.0 && cam.camera.img_from_cam(&x).is_some_and(|px| (px - pixel).norm() <= LOOP_MAX_REPROJ_PX)
     }
 
     /// Corrects the poses and points, fuses the loop's points and matches,
@@ -308,6 +334,7 @@ impl Mapper {
         &mut self,
         image_id: ImageId,
         found: &VerifiedLoop,
+        frontend: &Frontend,
         opts: &SlamOptions,
         timings: &mut StageTimings,
     ) -> Result<LoopClosure, SlamError> {
@@ -319,15 +346,8 @@ impl Mapper {
         let after = self.rec.image(image_id).map(|i| i.cam_from_world.center()).unwrap_or_else(Vec3::zeros);
         let pairs: Vec<(Point3DId, Point3DId)> =
             found.inliers.iter().map(|p| (p.target_point, p.source_point)).collect();
-        let merged = merge_point_pairs(&mut self.rec, &pairs)?;
-        let focal = self.focal()?;
-        if let (Some(k), Some(pose)) =
-            (self.keyframe_position(image_id), self.rec.image(image_id).map(|i| i.cam_from_world))
-        {
-            let data = self.keyframes[k].data.clone();
-            let verified = self.verified_matches(&data, &pose, &found.matches, focal, VERIFY_MAX_ERROR_PX);
-            self.add_correspondences(image_id, &verified)?;
-        }
+        let mut merged = merge_point_pairs(&mut self.rec, &pairs)?;
+        merged += self.fuse_loop(image_id, found, frontend, timings)?;
         let tri = opts.mapper.triangulator();
         timings.time(Stage::Triangulation, || complete_and_merge_all(&mut self.rec, &self.graph, &tri))?;
         timings.add(Stage::LoopClosure, started.elapsed());
@@ -343,6 +363,59 @@ impl Mapper {
             rotation_deg: found.sim.rotation.angle().to_degrees(),
             translation: (after - before).norm(),
         })
+    }
+
+    /// Loop fusion on the corrected map: the closing keyframe and its
+    /// covisible keyframes are matched to the candidate's group (the closing
+    /// keyframe's matches are the verification's); matches that agree with
+    /// the corrected poses go into the correspondence graph, and matched
+    /// points that now coincide (reprojection, as the verification) are
+    /// merged. Returns the points merged.
+    fn fuse_loop(
+        &mut self,
+        image_id: ImageId,
+        found: &VerifiedLoop,
+        frontend: &Frontend,
+        timings: &mut StageTimings,
+    ) -> Result<usize, SlamError> {
+        let focal = self.focal()?;
+        let mut sources = vec![image_id];
+        sources.extend(covisible_images(&self.rec, image_id, 1, LOOP_MATCH_GROUP));
+        let targets: Vec<usize> = found.matches.iter().map(|(k, _)| *k).collect();
+        let mut merged = 0;
+        let target_ids: Vec<ImageId> = targets.iter().map(|&t| self.keyframes[t].image_id).collect();
+        // A neighbour of the closing keyframe may already be in the
+        // candidate's group (it saw both sides): nothing to fuse there.
+        sources.retain(|s| !target_ids.contains(s));
+        for source in sources {
+            let (Some(s), Some(pose)) =
+                (self.keyframe_position(source), self.rec.image(source).map(|i| i.cam_from_world))
+            else {
+                continue;
+            };
+            let data = self.keyframes[s].data.clone();
+            let matches = if source == image_id {
+                found.matches.clone()
+            } else {
+                let mut out = Vec::with_capacity(targets.len());
+                for &t in &targets {
+                    let m = timings.time(Stage::Matching, || frontend.match_frames(&data, &self.keyframes[t].data))?;
+                    out.push((t, m));
+                }
+                out
+            };
+            let verified = self.verified_matches(&data, &pose, &matches, focal, VERIFY_MAX_ERROR_PX);
+            self.add_correspondences(source, &verified)?;
+            let identity = Sim3::identity();
+            let pairs: Vec<(Point3DId, Point3DId)> = matches
+                .iter()
+                .flat_map(|(t, m)| self.point_pairs(source, self.keyframes[*t].image_id, m))
+                .filter(|(p, px)| is_inlier(self, &identity, p) && self.reprojects(source, &p.target_xyz, px))
+                .map(|(p, _)| (p.target_point, p.source_point))
+                .collect();
+            merged += merge_point_pairs(&mut self.rec, &pairs)?;
+        }
+        Ok(merged)
     }
 
     /// Moves the keyframes registered after `candidate` (up to `image_id`)

@@ -40,6 +40,7 @@ const RELOCALIZE_NEIGHBOURS: usize = 5;
 
 /// A 3D-3D correspondence between two maps, with the observation in the
 /// target map used to verify it by reprojection.
+#[derive(Clone)]
 pub(super) struct Pair {
     pub(super) source_point: Point3DId,
     pub(super) target_point: Point3DId,

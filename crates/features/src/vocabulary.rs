@@ -35,9 +35,9 @@ pub struct VocabularyOptions {
 
 impl Default for VocabularyOptions {
     fn default() -> Self {
-        // 10^3 words: enough to tell rooms apart in a run's few hundred
+        // Seed: "bow" in ASCII. 10^3 words: enough to tell rooms apart in a run's few hundred
         // keyframes while each node still gets descriptors to cluster.
-        Self { branching: 10, depth: 3, iterations: 6, max_per_document: 300, seed: 0x626f_77 }
+        Self { branching: 10, depth: 3, iterations: 6, max_per_document: 300, seed: 0x0062_6f77 }
     }
 }
 

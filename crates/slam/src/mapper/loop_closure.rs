@@ -191,7 +191,8 @@ impl Mapper {
                 bows.insert(k.image_id, bow);
             }
             tracing::debug!("map {}: vocabulary of {} words on {n} keyframes", self.index, vocab.num_words());
-            (self.loops.vocab, self.loops.index, self.loops.bows, self.loops.trained_on) = (Some(vocab), index, bows, n);
+            (self.loops.vocab, self.loops.index, self.loops.bows, self.loops.trained_on) =
+                (Some(vocab), index, bows, n);
             return true;
         }
         let Some(kf) = self.keyframes.iter().find(|k| k.image_id == image_id) else { return false };
@@ -231,7 +232,8 @@ impl Mapper {
         let mut groups = Vec::new();
         let mut out = Vec::new();
         for (id, score) in hits {
-            let mut group: BTreeSet<ImageId> = covisible_images(&self.rec, id, 1, LOOP_NEIGHBOURS).into_iter().collect();
+            let mut group: BTreeSet<ImageId> =
+                covisible_images(&self.rec, id, 1, LOOP_NEIGHBOURS).into_iter().collect();
             group.insert(id);
             let previous =
                 self.loops.groups.iter().filter(|(g, _)| !g.is_disjoint(&group)).map(|(_, c)| *c).max().unwrap_or(0);
@@ -277,7 +279,9 @@ impl Mapper {
         let back = sim.inverse();
         let inliers: Vec<Pair> = pairs
             .into_iter()
-            .filter(|(p, px)| is_inlier(self, &sim, p) && self.reprojects(image_id, &back.transform_point(&p.target_xyz), px))
+            .filter(|(p, px)| {
+                is_inlier(self, &sim, p) && self.reprojects(image_id, &back.transform_point(&p.target_xyz), px)
+            })
             .map(|(p, _)| p)
             .collect();
         tracing::debug!("map {}: loop candidate {candidate:?}: {} Sim(3) inliers", self.index, inliers.len());
@@ -289,12 +293,7 @@ impl Mapper {
 
     /// The 3D-3D correspondences of matches (query: keyframe `source`,
     /// train: keyframe `target`) between distinct points.
-    fn point_pairs(
-        &self,
-        source: ImageId,
-        target: ImageId,
-        matches: &[colslam_features::Match],
-    ) -> Vec<(Pair, Vec2)> {
+    fn point_pairs(&self, source: ImageId, target: ImageId, matches: &[colslam_features::Match]) -> Vec<(Pair, Vec2)> {
         let (Some(si), Some(ti)) = (self.rec.image(source), self.rec.image(target)) else { return Vec::new() };
         let point = |img: &colslam_scene::Image, kp: u32| {
             let p2 = img.points2d.get(kp as usize)?;

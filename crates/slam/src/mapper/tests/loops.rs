@@ -102,7 +102,8 @@ fn no_loop_is_closed_on_a_path_that_never_comes_back() {
     };
     let (first, middle) = (slab(500, -4.0, 3.0), slab(700, 3.0, 11.0));
     // The same columns 15 units on, at other heights and depths.
-    let last: Vec<Vec3> = first.iter().map(|p| Vec3::new(p.x + 15.0, r.uniform(-2.0, 2.0), r.uniform(6.0, 12.0))).collect();
+    let last: Vec<Vec3> =
+        first.iter().map(|p| Vec3::new(p.x + 15.0, r.uniform(-2.0, 2.0), r.uniform(6.0, 12.0))).collect();
     let tags: Vec<u64> = (0..500).chain(500..1200).chain(0..500).collect();
     let points = [first, middle, last].concat();
     let mut line = Scene::new((0..61).map(path_pose).collect(), points, 9);

@@ -346,10 +346,12 @@ impl Mapper {
         let pairs: Vec<(Point3DId, Point3DId)> =
             found.inliers.iter().map(|p| (p.target_point, p.source_point)).collect();
         let mut merged = merge_point_pairs(&mut self.rec, &pairs)?;
+        // Fusion's matching, track work and the global BA count in their
+        // own stages.
+        timings.add(Stage::LoopClosure, started.elapsed());
         merged += self.fuse_loop(image_id, found, frontend, timings)?;
         let tri = opts.mapper.triangulator();
         timings.time(Stage::Triangulation, || complete_and_merge_all(&mut self.rec, &self.graph, &tri))?;
-        timings.add(Stage::LoopClosure, started.elapsed());
         self.global_refine(GlobalBaTolerance::Converged, opts, timings)?;
         Ok(LoopClosure {
             frame: frame_of(self, image_id),

@@ -11,6 +11,9 @@
 //! * `loop`: the synthetic generator's laps around the central table, one
 //!   lap per [`FRAMES_PER_LAP`] frames (after the first lap everything is
 //!   mapped space);
+//! * `loop-drift`: the same laps at 160x120 (not measured by default),
+//!   which drift past the pose-proximity revisit test within a lap: the
+//!   sequence for loop closure by appearance (`--run-args --loop-closure`);
 //! * `forward-back`: a real sequence (default `tum_fr1_rpy_sub`) played
 //!   forward and back (frames 0..n-1, n-2..0, 1.., ...) as a TUM folder of
 //!   symbolic links with strictly increasing timestamps and the matching
@@ -42,7 +45,13 @@ pub const SYNTHETIC_LENGTHS: [usize; 3] = [1000, 5000, 10000];
 /// Default lengths of the forward-back sequence, frames.
 pub const FORWARD_BACK_LENGTHS: [usize; 4] = [1000, 2000, 4000, 10000];
 /// The sequence kinds `--sequences` accepts.
-pub const KINDS: [&str; 3] = ["explore", "loop", "forward-back"];
+pub const KINDS: [&str; 4] = ["explore", "loop", "forward-back", "loop-drift"];
+/// The sequences measured when `--sequences` is not given.
+pub const DEFAULT_KINDS: [&str; 3] = ["explore", "loop", "forward-back"];
+/// Image size of `loop-drift`: the looping path at this size drifts past
+/// the pose-proximity revisit test within a lap (about 1.25x in scale and
+/// 46 degrees), so only loop closure by appearance ties the laps.
+pub const LOOP_DRIFT_SIZE: (usize, usize) = (160, 120);
 /// Frames per lap of the looping path (at the default 30 fps and orbit
 /// radius the camera moves about 1.1 cm a frame, like the default arc).
 pub const FRAMES_PER_LAP: usize = 1000;
@@ -66,8 +75,9 @@ const KIB: f64 = 1024.0;
 pub struct Args {
     /// Which sequences (comma separated): explore (synthetic, new space all
     /// along), loop (synthetic laps of a room), forward-back (a real
-    /// sequence played forward and back).
-    #[arg(long, value_delimiter = ',', default_values_t = KINDS.map(String::from))]
+    /// sequence played forward and back), loop-drift (the laps at 160x120,
+    /// which drift past the revisit test: for `--run-args --loop-closure`).
+    #[arg(long, value_delimiter = ',', default_values_t = DEFAULT_KINDS.map(String::from))]
     pub sequences: Vec<String>,
     /// Lengths in frames (comma separated) for every selected sequence.
     /// Default: 1000,5000,10000 synthetic; 1000,2000,4000,10000 forward-back.
@@ -176,7 +186,8 @@ pub fn forward_back_index(k: usize, n: usize) -> usize {
 }
 
 /// The synthetic options of `kind` (`explore` or `loop`) at `frames` frames.
-pub fn synthetic_options(kind: &str, frames: usize, (width, height): (usize, usize)) -> Result<SynthOptions> {
+pub fn synthetic_options(kind: &str, frames: usize, size: (usize, usize)) -> Result<SynthOptions> {
+    let (kind, (width, height)) = if kind == "loop-drift" { ("loop", LOOP_DRIFT_SIZE) } else { (kind, size) };
     let d = SynthOptions::default();
     let base = SynthOptions {
         frames,
@@ -544,13 +555,15 @@ mod tests {
 
     #[test]
     fn synthetic_shapes_validate_at_every_default_length() {
-        for kind in ["explore", "loop"] {
+        for kind in ["explore", "loop", "loop-drift"] {
             for n in SYNTHETIC_LENGTHS {
                 let o = synthetic_options(kind, n, DEFAULT_SYNTHETIC_SIZE).unwrap();
                 o.validate().unwrap_or_else(|e| panic!("{kind} {n}: {e}"));
             }
         }
         assert!(synthetic_options("spiral", 10, DEFAULT_SYNTHETIC_SIZE).is_err());
+        let drift = synthetic_options("loop-drift", 1000, DEFAULT_SYNTHETIC_SIZE).unwrap();
+        assert_eq!((drift.width, drift.height, drift.path), (160, 120, PathShape::Laps));
     }
 
     fn row(seq: &str, length: usize, kf: usize, rss: f64, cpu: f64) -> ScaleRow {

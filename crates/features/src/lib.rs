@@ -10,6 +10,8 @@
 //!   descriptors, Euclidean for float ones) with mutual (cross-check), ratio
 //!   and distance filters, plus a guided variant that only searches near a
 //!   predicted position.
+//! * [`Vocabulary`], [`PlaceIndex`]: a bag of binary words trained on the
+//!   run's own descriptors and an inverted index, for loop detection.
 //! * [`flow_score`]: the optical-flow score the paper (section 3.2) uses for
 //!   keyframe selection.
 //!
@@ -55,6 +57,7 @@ mod registry;
 mod simd;
 mod subpixel;
 mod types;
+pub mod vocabulary;
 
 pub use error::FeatureError;
 pub use flow::{FlowScore, flow_score};
@@ -64,3 +67,4 @@ pub use registry::{
     EXTRACTOR_NAMES, ExtractorOptions, MATCHER_NAMES, MatcherOptions, extractor_by_name, matcher_by_name,
 };
 pub use types::{Descriptors, FeatureExtractor, Features, Keypoint, Match, Matcher};
+pub use vocabulary::{BowVector, PlaceIndex, Vocabulary, VocabularyOptions, bow_score};

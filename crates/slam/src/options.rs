@@ -308,6 +308,16 @@ pub struct MapperOptions {
     /// way (the newest and those outside every later bundle included).
     #[cfg_attr(feature = "cli", arg(long))]
     pub cull_keyframes: bool,
+    /// Close loops by appearance (bag of binary words, Sim(3) verification, correction).
+    ///
+    /// After each keyframe, keyframes that look like it (a vocabulary
+    /// trained on the run's own ORB descriptors) but share no point with it
+    /// are verified by a Sim(3) between their 3D points; a loop found for
+    /// three consecutive keyframes is closed: the poses since the old
+    /// keyframe are corrected, the points fused and the map globally
+    /// adjusted. ORB features only.
+    #[cfg_attr(feature = "cli", arg(long))]
+    pub loop_closure: bool,
 }
 
 impl Default for MapperOptions {
@@ -326,6 +336,7 @@ impl Default for MapperOptions {
             global_ba_growth: 1.1,
             weight_by_level: false,
             cull_keyframes: false,
+            loop_closure: false,
         }
     }
 }

@@ -82,6 +82,8 @@ pub struct RunReport {
     /// Keyframes culled as redundant (`--cull-keyframes`), all maps; their
     /// frames are localised like non-keyframes.
     pub culled_keyframes: usize,
+    /// Loops closed by appearance (`--loop-closure`), all maps, in order.
+    pub loops: Vec<crate::mapper::LoopClosure>,
     /// Keyframe candidates refused for too little rotation-compensated flow
     /// (`--parallax-threshold`).
     pub refused_parallax: usize,
@@ -323,6 +325,7 @@ pub fn write_outputs(
         forced_keyframes: result.stats.forced_keyframes,
         deregistered: result.stats.deregistered,
         culled_keyframes: result.maps.iter().map(|m| m.map.culled_keyframes()).sum(),
+        loops: result.maps.iter().flat_map(|m| m.map.loops().iter().cloned()).collect(),
         refused_parallax: result.stats.refused_parallax,
         notes: result.stats.notes.clone(),
         timings_s: result.timings.clone(),

@@ -722,7 +722,11 @@ impl Slam {
         t.prev = None;
         t.reference = None;
         let mut global = None;
-        if t.map.needs_global_refine(&self.opts) {
+        // A closed loop ends with a converged global BA and moves every
+        // pose: the consumer gets a full snapshot.
+        let looped = self.opts.mapper.loop_closure
+            && t.map.close_loop(image_id, &self.frontend, &self.opts, &mut self.timings)?.is_some();
+        if !looped && t.map.needs_global_refine(&self.opts) {
             global = Some(t.map.global_refine(GlobalBaTolerance::Periodic, &self.opts, &mut self.timings)?);
         }
         self.emitter.keyframe(&t.map, image_id);
@@ -737,7 +741,7 @@ impl Slam {
         }
         // A culled keyframe is not in an increment (which only adds and
         // moves): a full snapshot replaces the consumer's copy without it.
-        let full = global.is_some() || t.map.culled_keyframes() > culled_before;
+        let full = global.is_some() || looped || t.map.culled_keyframes() > culled_before;
         self.emitter.map(&t.map, full);
         Ok(true)
     }

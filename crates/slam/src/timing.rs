@@ -26,6 +26,10 @@ pub enum Stage {
     LocalBa,
     /// Global bundle adjustment.
     GlobalBa,
+    /// Loop detection (place index, candidates) and correction
+    /// (`--loop-closure`; its matching, triangulation and global BA count in
+    /// their own stages).
+    LoopClosure,
     /// Localisation of non-keyframes.
     Localization,
     /// Writing the outputs.
@@ -53,6 +57,8 @@ pub struct StageTimings {
     pub local_ba: f64,
     /// [`Stage::GlobalBa`].
     pub global_ba: f64,
+    /// [`Stage::LoopClosure`].
+    pub loop_closure: f64,
     /// [`Stage::Localization`].
     pub localization: f64,
     /// [`Stage::Output`].
@@ -73,6 +79,7 @@ impl StageTimings {
             Stage::Triangulation => &mut self.triangulation,
             Stage::LocalBa => &mut self.local_ba,
             Stage::GlobalBa => &mut self.global_ba,
+            Stage::LoopClosure => &mut self.loop_closure,
             Stage::Localization => &mut self.localization,
             Stage::Output => &mut self.output,
         };

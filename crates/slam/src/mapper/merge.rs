@@ -40,13 +40,14 @@ const RELOCALIZE_NEIGHBOURS: usize = 5;
 
 /// A 3D-3D correspondence between two maps, with the observation in the
 /// target map used to verify it by reprojection.
-struct Pair {
-    source_point: Point3DId,
-    target_point: Point3DId,
-    source_xyz: Vec3,
-    target_xyz: Vec3,
-    target_image: ImageId,
-    target_pixel: Vec2,
+#[derive(Clone)]
+pub(super) struct Pair {
+    pub(super) source_point: Point3DId,
+    pub(super) target_point: Point3DId,
+    pub(super) source_xyz: Vec3,
+    pub(super) target_xyz: Vec3,
+    pub(super) target_image: ImageId,
+    pub(super) target_pixel: Vec2,
 }
 
 /// Keyframes of `map` nearest in frame index to `frame`, nearest first.
@@ -107,7 +108,7 @@ fn cross_matches(
 
 /// True when `p`'s source point, moved by `s`, reprojects into its target
 /// observation within [`MERGE_MAX_REPROJ_PX`].
-fn is_inlier(target: &Mapper, s: &Sim3, p: &Pair) -> bool {
+pub(super) fn is_inlier(target: &Mapper, s: &Sim3, p: &Pair) -> bool {
     let Some(img) = target.rec.image(p.target_image) else { return false };
     let Some(cam) = target.rec.camera(img.camera_id) else { return false };
     let x = img.cam_from_world.transform_point(&s.transform_point(&p.source_xyz));
@@ -117,7 +118,7 @@ fn is_inlier(target: &Mapper, s: &Sim3, p: &Pair) -> bool {
 /// The similarity `target_from_source` with the most reprojection inliers
 /// over [`MERGE_RANSAC_ITERATIONS`] minimal samples, refitted on its
 /// inliers; `None` below [`MERGE_MIN_INLIERS`].
-fn similarity(target: &Mapper, pairs: &[Pair], seed: u64) -> Option<Sim3> {
+pub(super) fn similarity(target: &Mapper, pairs: &[Pair], seed: u64) -> Option<Sim3> {
     let mut rng = SplitMix64::new(seed ^ MERGE_SEED);
     let mut best: Option<(usize, Sim3)> = None;
     for _ in 0..MERGE_RANSAC_ITERATIONS {
@@ -147,6 +148,25 @@ fn similarity(target: &Mapper, pairs: &[Pair], seed: u64) -> Option<Sim3> {
     let dst: Vec<Vec3> = inliers.iter().map(|p| p.target_xyz).collect();
     let refit = umeyama(&src, &dst, true).ok();
     Some(refit.filter(|s| inliers.iter().filter(|p| is_inlier(target, s, p)).count() >= count).unwrap_or(s0))
+}
+
+/// Merges each pair of points whose tracks see disjoint images (a track
+/// sees an image once); returns how many were merged.
+pub(super) fn merge_point_pairs(
+    rec: &mut Reconstruction,
+    pairs: &[(Point3DId, Point3DId)],
+) -> Result<usize, colslam_scene::SceneError> {
+    let mut merged = 0;
+    for &(a, b) in pairs {
+        // Both may have been merged away already by an earlier pair.
+        let images = |id: Point3DId| rec.point3d(id).map(|p| p.track.iter().map(|e| e.image_id).collect::<Vec<_>>());
+        let disjoint = matches!((images(a), images(b)), (Some(x), Some(y)) if x.iter().all(|i| !y.contains(i)));
+        if disjoint {
+            rec.merge_points3d(a, b)?;
+            merged += 1;
+        }
+    }
+    Ok(merged)
 }
 
 impl Mapper {
@@ -332,16 +352,9 @@ impl Mapper {
         merged_pairs: &[(Point3DId, Point3DId)],
         point_map: &BTreeMap<Point3DId, Point3DId>,
     ) -> Result<(), SlamError> {
-        for (tp, sp) in merged_pairs {
-            let Some(&np) = point_map.get(sp) else { continue };
-            // Both may have been merged away already by an earlier pair.
-            let images =
-                |id: Point3DId| self.rec.point3d(id).map(|p| p.track.iter().map(|e| e.image_id).collect::<Vec<_>>());
-            let disjoint = matches!((images(*tp), images(np)), (Some(a), Some(b)) if a.iter().all(|i| !b.contains(i)));
-            if disjoint {
-                self.rec.merge_points3d(*tp, np)?;
-            }
-        }
+        let pairs: Vec<(Point3DId, Point3DId)> =
+            merged_pairs.iter().filter_map(|(tp, sp)| point_map.get(sp).map(|&np| (*tp, np))).collect();
+        merge_point_pairs(&mut self.rec, &pairs)?;
         Ok(())
     }
 

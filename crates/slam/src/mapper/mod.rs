@@ -16,12 +16,16 @@
 //! - [`Mapper::merge`] (`merge.rs`): joining a second map;
 //! - [`Mapper::match_overlapping_pairs`] (`overlap.rs`): matching the
 //!   keyframe pairs whose views overlap but were never matched, at the end;
-//! - rolling-shutter compensation (`rolling_shutter.rs`).
+//! - rolling-shutter compensation (`rolling_shutter.rs`);
+//! - [`Mapper::close_loop`] (`loop_closure.rs`, `--loop-closure`): loop
+//!   detection by appearance after a keyframe, Sim(3) verification and
+//!   correction.
 
 mod cull;
 pub(crate) mod init;
 mod local_map;
 mod localize;
+mod loop_closure;
 mod merge;
 mod overlap;
 mod probe;
@@ -30,6 +34,7 @@ pub mod rolling_shutter;
 mod state;
 
 pub use localize::{FrameInliers, Localization};
+pub use loop_closure::LoopClosure;
 pub use overlap::OverlapReport;
 pub use register::{RegisterFailure, Registration};
 pub use state::{Keyframe, Mapper, ORB_LEVEL_SCALE, keypoint_sigmas};

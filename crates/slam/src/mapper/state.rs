@@ -54,6 +54,9 @@ pub struct Mapper {
     pub(super) intrinsics_version: u64,
     /// Keyframes culled as redundant (`--cull-keyframes`, `cull.rs`).
     pub(super) culled: usize,
+    /// Place recognition and the loops closed (`--loop-closure`,
+    /// `loop_closure.rs`).
+    pub(super) loops: super::loop_closure::LoopState,
 }
 
 /// Scale between ORB pyramid levels: a keypoint found at octave `o` is
@@ -82,6 +85,7 @@ impl Mapper {
             sigmas: KeypointSigmas::default(),
             intrinsics_version: 0,
             culled: 0,
+            loops: Default::default(),
         }
     }
 

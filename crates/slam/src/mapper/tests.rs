@@ -50,6 +50,9 @@ struct Scene {
     kps: Vec<Vec<Option<usize>>>,
     /// Seed of the descriptors: scenes with other seeds share no match.
     desc_seed: u64,
+    /// The descriptor tag of each point when not its index (a repeated
+    /// texture: two points with one tag); empty: every point its own.
+    desc_tags: Vec<u64>,
 }
 
 /// The pose of frame `k` on the translating path: sideways along x with a
@@ -82,7 +85,7 @@ impl Scene {
     fn new(poses: Vec<Rigid3>, points: Vec<Vec3>, desc_seed: u64) -> Self {
         let camera_opencv = Camera::pinhole(WIDTH, HEIGHT, 500.0, 500.0, 320.0, 240.0);
         let camera = camera_opencv.convert_pixel_convention(PixelConvention::OpenCv, PixelConvention::Colmap);
-        let mut s = Self { camera_opencv, camera, points, poses, kps: Vec::new(), desc_seed };
+        let mut s = Self { camera_opencv, camera, points, poses, kps: Vec::new(), desc_seed, desc_tags: Vec::new() };
         s.kps = (0..s.poses.len())
             .map(|f| {
                 let mut kps: Vec<Option<usize>> =
@@ -154,7 +157,7 @@ impl Scene {
             let (px, n, d, c) = match kp {
                 Some(p) => {
                     let (px, n) = self.project(f, *p).expect("listed points are visible");
-                    (px, n, self.descriptor(*p as u64), Self::color(*p))
+                    (px, n, self.descriptor(self.desc_tags.get(*p).copied().unwrap_or(*p as u64)), Self::color(*p))
                 }
                 None => {
                     let px = Vec2::new(clutter.uniform(10.0, 630.0), clutter.uniform(10.0, 470.0));
@@ -1443,3 +1446,5 @@ fn scale_probe_reports_the_keyframe_centres_and_gauge_free_point_statistics() {
     assert!((probe.median_angle_deg - median(&angles)).abs() < 1e-6, "{probe:?}");
     assert!(probe.median_angle_deg > 0.0 && probe.median_depth_over_baseline > 0.0, "{probe:?}");
 }
+
+mod loops;

@@ -13,7 +13,8 @@
 //!   mapped space);
 //! * `loop-drift`: the same laps at 160x120 (not measured by default),
 //!   which drift past the pose-proximity revisit test within a lap: the
-//!   sequence for loop closure by appearance (`--run-args --loop-closure`);
+//!   sequence for loop closure by appearance (on by default; `--run-args
+//!   "--loop-closure false"` for the run without it);
 //! * `forward-back`: a real sequence (default `tum_fr1_rpy_sub`) played
 //!   forward and back (frames 0..n-1, n-2..0, 1.., ...) as a TUM folder of
 //!   symbolic links with strictly increasing timestamps and the matching
@@ -76,7 +77,7 @@ pub struct Args {
     /// Which sequences (comma separated): explore (synthetic, new space all
     /// along), loop (synthetic laps of a room), forward-back (a real
     /// sequence played forward and back), loop-drift (the laps at 160x120,
-    /// which drift past the revisit test: for `--run-args --loop-closure`).
+    /// which drift past the revisit test: the sequence for loop closure).
     #[arg(long, value_delimiter = ',', default_values_t = DEFAULT_KINDS.map(String::from))]
     pub sequences: Vec<String>,
     /// Lengths in frames (comma separated) for every selected sequence.

@@ -315,8 +315,10 @@ pub struct MapperOptions {
     /// are verified by a Sim(3) between their 3D points; a loop found for
     /// three consecutive keyframes is closed: the poses since the old
     /// keyframe are corrected, the points fused and the map globally
-    /// adjusted. ORB features only.
-    #[cfg_attr(feature = "cli", arg(long))]
+    /// adjusted. ORB features only. On by default, as in ORB-SLAM: a run
+    /// that never revisits a place finds no candidate and keeps its outputs
+    /// (`--loop-closure false` turns it off).
+    #[cfg_attr(feature = "cli", arg(long, value_name = "BOOL", default_value_t = MapperOptions::default().loop_closure, action = clap::ArgAction::Set))]
     pub loop_closure: bool,
 }
 
@@ -336,7 +338,7 @@ impl Default for MapperOptions {
             global_ba_growth: 1.1,
             weight_by_level: false,
             cull_keyframes: false,
-            loop_closure: false,
+            loop_closure: true,
         }
     }
 }

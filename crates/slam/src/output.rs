@@ -118,16 +118,9 @@ impl RunReport {
     /// The run in one line, e.g. `38 of 40 frames localised, 6 keyframes,
     /// 1234 points, 1 map` (the numbers of the largest map; every front end
     /// that names a run's outcome uses this line).
+    /// A run that closed loops says how many (`, 1 loop closed`).
     pub fn headline(&self) -> String {
-        let maps = self.maps.len();
-        format!(
-            "{} of {} frames localised, {} keyframes, {} points, {maps} map{}",
-            self.localized,
-            self.frames,
-            self.keyframes,
-            self.points,
-            if maps == 1 { "" } else { "s" }
-        )
+        headline(self.localized, self.frames, self.keyframes, self.points, self.maps.len(), self.loops.len())
     }
 
     /// The headline and where the run's outputs are: the line that ends a
@@ -341,10 +334,39 @@ pub fn write_outputs(
     })
 }
 
+/// [`RunReport::headline`] from its numbers.
+fn headline(localized: usize, frames: usize, keyframes: usize, points: usize, maps: usize, loops: usize) -> String {
+    let plural = |n: usize| if n == 1 { "" } else { "s" };
+    let mut line = format!(
+        "{localized} of {frames} frames localised, {keyframes} keyframes, {points} points, {maps} map{}",
+        plural(maps)
+    );
+    if loops > 0 {
+        line.push_str(&format!(", {loops} loop{} closed", plural(loops)));
+    }
+    line
+}
+
 /// Writes `report.json` atomically.
 pub fn write_report(report: &RunReport, out: &Path) -> Result<(), SlamError> {
     let path = out.join("report.json");
     let mut text = serde_json::to_string_pretty(report)?;
     text.push('\n');
     colslam_image::write_atomic(&path, text.as_bytes()).map_err(|source| SlamError::Io { path, source })
+}
+
+#[cfg(test)]
+mod tests {
+    #[test]
+    fn the_headline_names_the_loops_closed() {
+        assert_eq!(
+            super::headline(38, 40, 6, 1234, 1, 0),
+            "38 of 40 frames localised, 6 keyframes, 1234 points, 1 map"
+        );
+        assert_eq!(
+            super::headline(38, 40, 6, 1234, 2, 1),
+            "38 of 40 frames localised, 6 keyframes, 1234 points, 2 maps, 1 loop closed"
+        );
+        assert!(super::headline(3000, 3000, 198, 9000, 1, 2).ends_with(", 2 loops closed"));
+    }
 }

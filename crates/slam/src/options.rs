@@ -308,7 +308,7 @@ pub struct MapperOptions {
     /// way (the newest and those outside every later bundle included).
     #[cfg_attr(feature = "cli", arg(long))]
     pub cull_keyframes: bool,
-    /// Close loops by appearance (bag of binary words, Sim(3) verification, correction).
+    /// Close loops by appearance (bag of words, Sim(3) verification, correction).
     ///
     /// After each keyframe, keyframes that look like it (a vocabulary
     /// trained on the run's own ORB descriptors) but share no point with it

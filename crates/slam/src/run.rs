@@ -50,9 +50,10 @@ pub struct CameraOptions {
     /// Kept as given; --refine-intrinsics refines it by bundle adjustment.
     #[cfg_attr(feature = "cli", arg(long, value_name = "PIXELS", conflicts_with_all = ["camera", "preset"]))]
     pub focal: Option<f64>,
-    /// Without any calibration, estimate the focal length from this many first frames (0: guess it as 1.2 times the larger image side and refine it).
+    /// No calibration: estimate the focal length from the first N frames (0: guess and refine).
     ///
-    /// Off by default: where the first frames constrain the focal length, refining the guess by bundle
+    /// With 0 the focal length is guessed as 1.2 times the larger image side
+    /// and refined by bundle adjustment. Off by default: where the first frames constrain the focal length, refining the guess by bundle
     /// adjustment ends as close and costs less; where they do not (forward motion), the guess is kept fixed.
     #[cfg_attr(feature = "cli", arg(long, value_name = "N", default_value_t = DEFAULT_FOCAL_SEARCH_FRAMES))]
     pub focal_search_frames: usize,

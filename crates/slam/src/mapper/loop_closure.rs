@@ -26,7 +26,7 @@
 //!    the inlier point pairs are merged, the verified matches added to the
 //!    graph, tracks completed and merged, and a converged global BA run.
 
-use super::merge::{Pair, is_inlier, merge_point_pairs, similarity};
+use super::merge::{Pair, is_inlier, merge_point_pairs, reprojects_within, similarity};
 use super::state::Mapper;
 use crate::error::SlamError;
 use crate::frontend::Frontend;
@@ -321,10 +321,7 @@ impl Mapper {
     /// True when `xyz` projects into image `image` within
     /// [`LOOP_MAX_REPROJ_PX`] of `pixel`.
     fn reprojects(&self, image: ImageId, xyz: &Vec3, pixel: &Vec2) -> bool {
-        let Some(img) = self.rec.image(image) else { return false };
-        let Some(cam) = self.rec.camera(img.camera_id) else { return false };
-        let x = img.cam_from_world.transform_point(xyz);
-        x.z > 0.0 && cam.camera.img_from_cam(&x).is_some_and(|px| (px - pixel).norm() <= LOOP_MAX_REPROJ_PX)
+        reprojects_within(self, image, xyz, pixel, LOOP_MAX_REPROJ_PX)
     }
 
     /// Corrects the poses and points, fuses the loop's points and matches,
@@ -394,18 +391,20 @@ impl Mapper {
             else {
                 continue;
             };
-            let data = self.keyframes[s].data.clone();
+            let data = &self.keyframes[s].data;
+            let fresh;
             let matches = if source == image_id {
-                found.matches.clone()
+                &found.matches
             } else {
                 let mut out = Vec::with_capacity(targets.len());
                 for &t in &targets {
-                    let m = timings.time(Stage::Matching, || frontend.match_frames(&data, &self.keyframes[t].data))?;
+                    let m = timings.time(Stage::Matching, || frontend.match_frames(data, &self.keyframes[t].data))?;
                     out.push((t, m));
                 }
-                out
+                fresh = out;
+                &fresh
             };
-            let verified = self.verified_matches(&data, &pose, &matches, focal, VERIFY_MAX_ERROR_PX);
+            let verified = self.verified_matches(data, &pose, matches, focal, VERIFY_MAX_ERROR_PX);
             self.add_correspondences(source, &verified)?;
             let identity = Sim3::identity();
             let pairs: Vec<(Point3DId, Point3DId)> = matches

@@ -109,10 +109,16 @@ fn cross_matches(
 /// True when `p`'s source point, moved by `s`, reprojects into its target
 /// observation within [`MERGE_MAX_REPROJ_PX`].
 pub(super) fn is_inlier(target: &Mapper, s: &Sim3, p: &Pair) -> bool {
-    let Some(img) = target.rec.image(p.target_image) else { return false };
-    let Some(cam) = target.rec.camera(img.camera_id) else { return false };
-    let x = img.cam_from_world.transform_point(&s.transform_point(&p.source_xyz));
-    cam.camera.img_from_cam(&x).is_some_and(|px| (px - p.target_pixel).norm() <= MERGE_MAX_REPROJ_PX)
+    reprojects_within(target, p.target_image, &s.transform_point(&p.source_xyz), &p.target_pixel, MERGE_MAX_REPROJ_PX)
+}
+
+/// True when `xyz` projects (in front of the camera) into image `image`
+/// of `map` within `max_px` of `pixel`.
+pub(super) fn reprojects_within(map: &Mapper, image: ImageId, xyz: &Vec3, pixel: &Vec2, max_px: f64) -> bool {
+    let Some(img) = map.rec.image(image) else { return false };
+    let Some(cam) = map.rec.camera(img.camera_id) else { return false };
+    let x = img.cam_from_world.transform_point(xyz);
+    cam.camera.img_from_cam(&x).is_some_and(|px| (px - pixel).norm() <= max_px)
 }
 
 /// The similarity `target_from_source` with the most reprojection inliers

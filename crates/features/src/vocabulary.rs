@@ -253,8 +253,16 @@ fn k_majority(
     for round in 0..iterations.max(1) {
         let mut next: Vec<Vec<usize>> = vec![Vec::new(); centers.len()];
         for &m in members {
-            let best = (0..centers.len()).min_by_key(|&c| (hamming_distance(&centers[c], &sample[m]), c)).unwrap_or(0);
-            next[best].push(m);
+            // The nearest centre, the first among equals.
+            let d = &sample[m];
+            let mut best = (u32::MAX, 0);
+            for (c, center) in centers.iter().enumerate() {
+                let dist = hamming_distance(center, d);
+                if dist < best.0 {
+                    best = (dist, c);
+                }
+            }
+            next[best.1].push(m);
         }
         let stable = round > 0 && next == groups;
         groups = next;

@@ -253,8 +253,16 @@ fn k_majority(
     for round in 0..iterations.max(1) {
         let mut next: Vec<Vec<usize>> = vec![Vec::new(); centers.len()];
         for &m in members {
-            let best = (0..centers.len()).min_by_key(|&c| (hamming_distance(&centers[c], &sample[m]), c)).unwrap_or(0);
-            next[best].push(m);
+            // The nearest centre, the first among equals.
+            let d = &sample[m];
+            let mut best = (u32::MAX, 0);
+            for (c, center) in centers.iter().enumerate() {
+                let dist = hamming_distance(center, d);
+                if dist < best.0 {
+                    best = (dist, c);
+                }
+            }
+            next[best.1].push(m);
         }
         let stable = round > 0 && next == groups;
         groups = next;
@@ -273,20 +281,29 @@ fn k_majority(
     (centers, groups)
 }
 
+/// Byte `b` spread over eight byte lanes: lane `k` (bits `8k..8k+8` of the
+/// `u64`) holds bit `k` of `b`.
+const SPREAD: [u64; 256] = {
+    let mut t = [0u64; 256];
+    let mut b = 0;
+    while b < 256 {
+        let mut k = 0;
+        while k < 8 {
+            t[b] |= ((b as u64 >> k) & 1) << (8 * k);
+            k += 1;
+        }
+        b += 1;
+    }
+    t
+};
+
+/// Descriptors counted in byte lanes before the lanes are flushed (a lane
+/// holds at most 255).
+const LANE_MAX: usize = 255;
+
 /// The bitwise majority of the descriptors `group` (ties give 0).
 fn majority(sample: &[BinaryDescriptor], group: &[usize]) -> BinaryDescriptor {
-    let mut ones = [0u32; 256];
-    for &m in group {
-        // Set bits only: half the work of testing all 256 on ORB's
-        // balanced descriptors.
-        for (w, &word) in sample[m].iter().enumerate() {
-            let mut rest = word;
-            while rest != 0 {
-                ones[64 * w + rest.trailing_zeros() as usize] += 1;
-                rest &= rest - 1;
-            }
-        }
-    }
+    let ones = bit_counts(sample, group);
     let mut out = [0u64; 4];
     for (bit, &count) in ones.iter().enumerate() {
         if 2 * count as usize > group.len() {
@@ -294,6 +311,32 @@ fn majority(sample: &[BinaryDescriptor], group: &[usize]) -> BinaryDescriptor {
         }
     }
     out
+}
+
+/// How many descriptors of `group` set each of the 256 bits. Counts in
+/// byte lanes (SWAR): one table lookup and one add per descriptor byte, for
+/// eight bits at once, instead of a branch per set bit; the lanes are
+/// flushed into the `u32` counts every [`LANE_MAX`] descriptors.
+fn bit_counts(sample: &[BinaryDescriptor], group: &[usize]) -> [u32; 256] {
+    let mut ones = [0u32; 256];
+    // Lane `k` of `lanes[8 w + j]` counts bit `8 j + k` of word `w`.
+    let mut lanes = [0u64; 32];
+    for chunk in group.chunks(LANE_MAX) {
+        for &m in chunk {
+            for (w, &word) in sample[m].iter().enumerate() {
+                for (j, lane) in lanes[8 * w..8 * w + 8].iter_mut().enumerate() {
+                    *lane += SPREAD[((word >> (8 * j)) & 0xff) as usize];
+                }
+            }
+        }
+        for (i, lane) in lanes.iter_mut().enumerate() {
+            for (k, count) in ones[8 * i..8 * i + 8].iter_mut().enumerate() {
+                *count += ((*lane >> (8 * k)) & 0xff) as u32;
+            }
+            *lane = 0;
+        }
+    }
+    ones
 }
 
 #[cfg(test)]
@@ -340,6 +383,32 @@ mod tests {
         let other = hits.iter().filter(|h| h.0 != 1).map(|h| h.1).fold(0.0, f32::max);
         assert!(hits[0].1 > 3.0 * other.max(0.01), "{hits:?}");
         assert!((bow_score(&again, &vocab.transform(&images[1])) - hits[0].1).abs() < 1e-5);
+    }
+
+    #[test]
+    fn bit_counts_equal_a_bit_by_bit_count() {
+        let mut rng = SplitMix64::new(11);
+        let mut sample = random_descriptors(700, &mut rng);
+        // Rows of all ones: 600 of them overflow a byte lane unless the
+        // lanes are flushed in time.
+        sample.extend(std::iter::repeat_n([u64::MAX; 4], 600));
+        let naive = |group: &[usize]| {
+            let mut ones = [0u32; 256];
+            for &m in group {
+                for (bit, count) in ones.iter_mut().enumerate() {
+                    *count += ((sample[m][bit / 64] >> (bit % 64)) & 1) as u32;
+                }
+            }
+            ones
+        };
+        let all: Vec<usize> = (0..sample.len()).collect();
+        for group in [&all[..0], &all[..1], &all[..2], &all[..255], &all[..256], &all[3..700], &all[..], &all[700..]] {
+            assert_eq!(bit_counts(&sample, group), naive(group), "{} descriptors", group.len());
+        }
+        assert_eq!(majority(&sample, &all[700..]), [u64::MAX; 4]);
+        // Ties give 0: a row and its complement.
+        let pair = [sample[0], sample[0].map(|w| !w)];
+        assert_eq!(majority(&pair, &[0, 1]), [0; 4]);
     }
 
     #[test]

@@ -1151,4 +1151,36 @@ mod tests {
         assert!(hooks.cancelled(), "the first flag stops the run");
         assert!(!RunHooks::default().then(RunHooks::default()).cancelled());
     }
+
+    /// An error in the middle of a run (here an interruption, as Ctrl-C
+    /// sends it) ends it with `Cancelled`, and the record store it had
+    /// spilled to, its staging folder and its lock are gone.
+    #[test]
+    fn an_interrupted_run_leaves_no_record_store() {
+        let dir = tempfile::tempdir().unwrap_or_else(|e| panic!("tempdir: {e}"));
+        let input = sequence(dir.path(), 30);
+        let out = dir.path().join("out");
+        let mut c = config(&input, &out, 30, false);
+        c.options.slam.refine.record_memory = 0;
+        let flag = Arc::new(AtomicBool::new(false));
+        let (seen, setter, count) = (std::cell::RefCell::new(None), flag.clone(), std::cell::Cell::new(0));
+        let hooks = RunHooks {
+            interrupt: Some(flag),
+            after_frame: Some(Box::new(|_: &Slam| {
+                count.set(count.get() + 1);
+                let stores: Vec<String> =
+                    names(dir.path()).into_iter().filter(|n| n.starts_with(".out.scratch-")).collect();
+                if !stores.is_empty() && seen.borrow().is_none() {
+                    *seen.borrow_mut() = Some((count.get(), stores));
+                    setter.store(true, Ordering::SeqCst);
+                }
+            })),
+            ..RunHooks::default()
+        };
+        let r = run(&c, EventSink::none(), hooks);
+        let (frame, stores) = seen.into_inner().unwrap_or_else(|| panic!("the run never spilled a record"));
+        assert_eq!(stores.len(), 1, "{stores:?}");
+        assert!(matches!(r, Err(SlamError::Cancelled { frame: f }) if f == frame), "{r:?}");
+        assert_eq!(names(dir.path()), ["seq"], "no record store, staging folder, lock or output left");
+    }
 }

@@ -29,7 +29,7 @@ fn sequence(dir: &Path, unique: usize, n: usize) -> PathBuf {
     }
     for k in 0..n {
         let lap = k / unique;
-        let i = if lap % 2 == 0 { k % unique } else { unique - 1 - k % unique };
+        let i = if lap.is_multiple_of(2) { k % unique } else { unique - 1 - k % unique };
         std::fs::hard_link(frames.join(format!("{i:06}.png")), input.join(format!("{k:06}.png")))
             .unwrap_or_else(|e| panic!("link: {e}"));
     }

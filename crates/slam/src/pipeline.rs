@@ -13,8 +13,8 @@ use crate::keyframe::{ForceKeyframe, keyframe_decision, rotation_compensated_flo
 use crate::mapper::init::{PairMatches, two_view};
 use crate::mapper::{Mapper, RegisterFailure, Registration};
 use crate::options::SlamOptions;
-use crate::records::SpillConfig;
 use crate::options::{GlobalBaTolerance, KEYFRAME_TWO_VIEW_TRIALS};
+use crate::records::SpillConfig;
 use crate::timing::{Stage, StageTimings};
 use colslam_estimators::TwoViewConfig;
 use colslam_features::{Match, flow_score};

@@ -135,12 +135,8 @@ impl SpillFile {
             let action = action.to_string();
             move |source| SlamError::RecordStore { path, action, source }
         };
-        let mut file = std::fs::OpenOptions::new()
-            .read(true)
-            .write(true)
-            .create_new(true)
-            .open(&path)
-            .map_err(io("creating"))?;
+        let mut file =
+            std::fs::OpenOptions::new().read(true).write(true).create_new(true).open(&path).map_err(io("creating"))?;
         // From here on a failure removes the file (Drop).
         let out = Self { path: path.clone(), file: Mutex::new((file.try_clone().map_err(io("opening"))?, 0)) };
         file.write_all(RECORD_FILE_MAGIC).map_err(io("writing"))?;

@@ -15,10 +15,10 @@
 //! relinked the same way.
 
 use super::state::Mapper;
+use crate::error::SlamError;
 use crate::frame::{FrameRecord, RecordObs};
 use crate::options::{CULL_MIN_OBSERVERS, CULL_RECORD_LINKS, CULL_REDUNDANT_SHARE, SlamOptions};
 use colslam_scene::{ImageId, TrackElement};
-use crate::error::SlamError;
 use std::collections::HashMap;
 
 /// For each keypoint of a culled keyframe, the keypoints of other keyframes

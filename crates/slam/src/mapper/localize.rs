@@ -67,9 +67,7 @@ impl Mapper {
             let done: Vec<(FrameId, Option<(FramePose, FrameInliers)>)> = pooled
                 .par_iter()
                 .flatten()
-                .filter(|r| {
-                    !r.promoted && !keyframe_frames.contains(&r.frame.index) && opts.refine.localize_all_frames
-                })
+                .filter(|r| !r.promoted && !keyframe_frames.contains(&r.frame.index) && opts.refine.localize_all_frames)
                 .map(|r| (r.frame.clone(), self.localize(r, camera, focal, opts)))
                 .collect();
             results.extend(done);

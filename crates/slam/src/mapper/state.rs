@@ -3,8 +3,8 @@
 
 use crate::error::SlamError;
 use crate::frame::{FrameData, FrameRecord};
-use crate::records::{RecordStore, SpillConfig};
 use crate::options::{GlobalBaTolerance, SlamOptions};
+use crate::records::{RecordStore, SpillConfig};
 use crate::timing::{Stage, StageTimings};
 use colslam_camera::Camera;
 use colslam_scene::{CameraId, ImageId, Point3DId, Reconstruction, SceneError};
@@ -199,7 +199,13 @@ impl Mapper {
 
     /// Appends the matches of `data` to keyframe `kf` to record `index`
     /// (from [`Self::add_record`]).
-    pub fn add_record_matches(&mut self, index: usize, data: &FrameData, kf: ImageId, matches: &[colslam_features::Match]) {
+    pub fn add_record_matches(
+        &mut self,
+        index: usize,
+        data: &FrameData,
+        kf: ImageId,
+        matches: &[colslam_features::Match],
+    ) {
         self.records.add_matches(index, data, kf, matches);
     }
 

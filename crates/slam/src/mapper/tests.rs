@@ -1334,7 +1334,8 @@ fn add_records_pools_observations_of_a_known_frame() {
     let scene = Scene::translating(1);
     let mut map = Mapper::empty(0, &scene.camera);
     assert_eq!(map.add_record(bare_record(3, &[1], false)).unwrap(), 0);
-    map.add_records(vec![bare_record(3, &[2], false), bare_record(9, &[5], false), bare_record(9, &[6], false)]).unwrap();
+    map.add_records(vec![bare_record(3, &[2], false), bare_record(9, &[5], false), bare_record(9, &[6], false)])
+        .unwrap();
     let records = map.records().unwrap();
     assert_eq!(records.iter().map(|r| r.frame.index).collect::<Vec<_>>(), vec![3, 9]);
     assert_eq!(obs_kps(&records[0]), vec![1, 2]);

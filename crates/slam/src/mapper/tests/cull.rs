@@ -20,7 +20,10 @@ fn assert_gone(map: &Mapper, id: ImageId) {
     assert!(map.rec.image(id).is_none(), "image {id:?} still in the model");
     assert!(!map.graph.exists_image(id), "image {id:?} still in the graph");
     assert!(map.rec.points3d().all(|(_, p)| p.track.iter().all(|e| e.image_id != id)));
-    assert!(map.records().unwrap().iter().all(|r| r.obs.iter().all(|o| o.keyframe != id)), "a record still refers to it");
+    assert!(
+        map.records().unwrap().iter().all(|r| r.obs.iter().all(|o| o.keyframe != id)),
+        "a record still refers to it"
+    );
 }
 
 /// The model is valid as COLMAP defines it and every point keeps two

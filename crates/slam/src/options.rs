@@ -520,7 +520,7 @@ pub struct RefineOptions {
     /// `auto` estimates the readout from the mapped sequence and reports it.
     #[cfg_attr(feature = "cli", arg(long, value_name = "SECONDS|auto", default_value_t = RefineOptions::default().rolling_shutter))]
     pub rolling_shutter: RollingShutter,
-    /// MiB of frame records kept in memory until the final localisation; older ones go to a temporary file beside the output (0: all of them).
+    /// MiB of frame records kept in memory; older ones spill to a file beside the output (0: all).
     ///
     /// Every non-keyframe keeps its matches to keyframes (about 32 KiB at 640x480) until it is localised at the end; beyond this budget they are written to `.OUT.scratch-*` beside the output folder and read back then. The file is removed when the run ends, whatever the outcome.
     #[cfg_attr(feature = "cli", arg(long, value_name = "MIB", default_value_t = RefineOptions::default().record_memory))]

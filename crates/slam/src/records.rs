@@ -315,7 +315,7 @@ impl RecordStore {
             if let Slot::Memory(r) = slot {
                 let before = r.compensated.len();
                 spec.apply(r);
-                self.memory = self.memory + r.compensated.len() * 16 - before * 16;
+                self.memory = (self.memory + r.compensated.len() * 16).saturating_sub(before * 16);
             }
         }
         self.compensation = (self.spilled > 0).then(|| Arc::new(spec));

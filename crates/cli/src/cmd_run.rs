@@ -14,6 +14,8 @@ use std::path::Path;
 pub fn with_progress<R>(quiet: bool, f: impl FnOnce(RunHooks<'_>) -> R) -> R {
     let pb = crate::logging::progress_bar(0, quiet, "frames", "frames");
     let out = f(RunHooks {
+        // Ctrl-C during a run stops it cleanly (`interrupt.rs`).
+        interrupt: Some(crate::interrupt::install()),
         on_start: Some(Box::new(|s: &RunStart| pb.set_length(s.frames.unwrap_or(0) as u64))),
         after_frame: Some(Box::new(|slam: &colslam_slam::Slam| {
             pb.inc(1);

@@ -10,6 +10,7 @@ mod cmd_export;
 mod cmd_info;
 mod cmd_run;
 mod cmd_view;
+mod interrupt;
 mod logging;
 /// Printing to stdout that ends quietly on a closed pipe: the bench lab's helper.
 mod stdout {
@@ -80,10 +81,22 @@ fn main() -> std::process::ExitCode {
     match dispatch(cli) {
         Ok(()) => std::process::ExitCode::SUCCESS,
         Err(e) => {
+            if let Some(frame) = interrupted_at(&e) {
+                eprintln!("colslam: interrupted at frame {frame}; nothing was written");
+                return std::process::ExitCode::from(interrupt::EXIT_INTERRUPTED);
+            }
             eprintln!("error: {e:#}");
             std::process::ExitCode::FAILURE
         }
     }
+}
+
+/// The frame a run stopped at when `e` is an interruption (Ctrl-C).
+fn interrupted_at(e: &anyhow::Error) -> Option<usize> {
+    e.chain().find_map(|c| match c.downcast_ref::<colslam_slam::SlamError>() {
+        Some(colslam_slam::SlamError::Cancelled { frame }) => Some(*frame),
+        _ => None,
+    })
 }
 
 fn dispatch(cli: Cli) -> Result<()> {

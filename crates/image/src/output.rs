@@ -14,7 +14,8 @@
 //! new output while it is written; after the swap on Linux, the old one
 //! until it is removed) and `.OUT.old-PID-N` (the old output between the
 //! two renames of the swap where the file system cannot exchange two
-//! folders atomically). A writer killed at any point leaves some of these;
+//! folders atomically), and `.OUT.scratch-PID-N` (a writer's temporary
+//! files, [`OutputDir::scratch_prefix`]). A writer killed at any point leaves some of these;
 //! the next writer to the same target removes them (a lock whose process is
 //! gone is stale and taken over) and, should the target be missing with an
 //! `.OUT.old-*` beside it, first puts that complete previous output back.
@@ -165,6 +166,20 @@ impl OutputDir {
         std::fs::create_dir(&staging).map_err(io(format!("creating {}", staging.display())))?;
         out.staging = staging;
         Ok(out)
+    }
+
+    /// Where a writer keeps temporary files beside the target while it
+    /// works (a run's spilled frame records): the folder and the start of a
+    /// name, to which the writer appends `PID-N` ([`std::process::id`] and
+    /// a counter). The writer removes them; leftovers of a killed writer are
+    /// removed by the next writer to the same target, as its staging folder.
+    pub fn scratch_prefix(&self) -> (PathBuf, String) {
+        let (parent, name) = match parent_and_name(&self.target) {
+            Ok(pn) => pn,
+            // `begin` resolved the same target: unreachable.
+            Err(_) => (PathBuf::from("."), "out".into()),
+        };
+        (parent, format!(".{name}.scratch-"))
     }
 
     /// The folder to write into (the staging folder).
@@ -375,12 +390,14 @@ fn clean_leftovers(parent: &Path, name: &str, target: &Path) -> Result<(), Outpu
     };
     let entries = std::fs::read_dir(parent).map_err(io(format!("listing {}", parent.display())))?;
     let (staging, old) = (format!(".{name}.staging-"), format!(".{name}.old-"));
+    let scratch = format!(".{name}.scratch-");
     let mut leftovers: Vec<(bool, PathBuf)> = entries
         .flatten()
         .filter_map(|e| {
             let n = e.file_name().to_string_lossy().into_owned();
             let is_old = has_unique_suffix(&n, &old);
-            (is_old || has_unique_suffix(&n, &staging)).then(|| (is_old, e.path()))
+            let ours = has_unique_suffix(&n, &staging) || has_unique_suffix(&n, &scratch);
+            (is_old || ours).then(|| (is_old, e.path()))
         })
         .collect();
     leftovers.sort();
@@ -388,8 +405,10 @@ fn clean_leftovers(parent: &Path, name: &str, target: &Path) -> Result<(), Outpu
         fault::step().map_err(io(format!("removing {}", path.display())))?;
         if is_old && std::fs::symlink_metadata(target).is_err() {
             std::fs::rename(&path, target).map_err(io(format!("restoring {}", path.display())))?;
-        } else {
+        } else if path.is_dir() {
             std::fs::remove_dir_all(&path).map_err(io(format!("removing {}", path.display())))?;
+        } else {
+            std::fs::remove_file(&path).map_err(io(format!("removing {}", path.display())))?;
         }
     }
     Ok(())

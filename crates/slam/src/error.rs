@@ -95,6 +95,23 @@ pub enum SlamError {
     /// The thread that reads and extracts frames ahead of the mapper panicked.
     #[error("the frame reader thread panicked")]
     ReaderPanicked,
+    /// The temporary store of the frames' records failed
+    /// (`crate::records`).
+    #[error("record store {}: {action}", path.display())]
+    RecordStore {
+        /// The temporary file.
+        path: std::path::PathBuf,
+        /// What failed.
+        action: String,
+        /// The cause.
+        source: std::io::Error,
+    },
+    /// The run was interrupted (Ctrl-C): nothing was written.
+    #[error("interrupted at frame {frame}")]
+    Cancelled {
+        /// Frames processed when the interruption was seen.
+        frame: usize,
+    },
     /// Serialising the report failed.
     #[error("report")]
     Json(#[from] serde_json::Error),

@@ -74,8 +74,8 @@ impl FrameData {
 
 /// One 2D observation of a non-keyframe, linked to a keyframe keypoint.
 ///
-/// Compact (20 bytes), since every non-keyframe's record is held until the
-/// final localisation: the position is kept as the extractor's `f32`
+/// Compact (20 bytes), since every non-keyframe's record is kept until the
+/// final localisation (in memory or spilled to disk, `crate::records`): the position is kept as the extractor's `f32`
 /// keypoint and the normalised coordinates are derived again from it with
 /// the map's camera when they are used ([`FrameRecord::normalized`]), so
 /// they always follow the final camera and are not stored twice.
@@ -100,6 +100,17 @@ impl RecordObs {
         Self { frame_kp, keypoint: [(pixel.x - 0.5) as f32, (pixel.y - 0.5) as f32], keyframe, keyframe_kp }
     }
 
+    /// An observation at the extractor's keypoint `keypoint` (OpenCV
+    /// convention), as [`Self::keypoint`] gives it back.
+    pub(crate) fn from_keypoint(frame_kp: u32, keypoint: [f32; 2], keyframe: ImageId, keyframe_kp: u32) -> Self {
+        Self { frame_kp, keypoint, keyframe, keyframe_kp }
+    }
+
+    /// The extractor's keypoint, OpenCV's pixel convention.
+    pub(crate) fn keypoint(&self) -> [f32; 2] {
+        self.keypoint
+    }
+
     /// The same observation linked to keypoint `keyframe_kp` of `keyframe`
     /// instead (the keyframe it matched was culled).
     pub fn relinked(&self, keyframe: ImageId, keyframe_kp: u32) -> Self {
@@ -113,7 +124,7 @@ impl RecordObs {
 }
 
 /// A non-keyframe to localise against the final map.
-#[derive(Debug, Clone)]
+#[derive(Debug, Clone, PartialEq)]
 pub struct FrameRecord {
     /// Which frame.
     pub frame: FrameId,

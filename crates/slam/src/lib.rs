@@ -36,6 +36,7 @@ pub mod mapper;
 pub mod options;
 pub mod output;
 pub mod pipeline;
+pub mod records;
 pub mod run;
 pub mod timing;
 

@@ -520,7 +520,17 @@ pub struct RefineOptions {
     /// `auto` estimates the readout from the mapped sequence and reports it.
     #[cfg_attr(feature = "cli", arg(long, value_name = "SECONDS|auto", default_value_t = RefineOptions::default().rolling_shutter))]
     pub rolling_shutter: RollingShutter,
+    /// MiB of frame records kept in memory; older ones spill to a file beside the output (0: all).
+    ///
+    /// Every non-keyframe keeps its matches to keyframes (about 32 KiB at 640x480) until it is localised at the end; beyond this budget they are written to `.OUT.scratch-*` beside the output folder and read back then. The file is removed when the run ends, whatever the outcome.
+    #[cfg_attr(feature = "cli", arg(long, value_name = "MIB", default_value_t = RefineOptions::default().record_memory))]
+    pub record_memory: usize,
 }
+
+/// Default of `--record-memory`, MiB: about 8,000 frames of 640x480 video
+/// stay in memory, so short runs never touch the disk (docs/benchmarks.md,
+/// "Long videos").
+pub const RECORD_MEMORY_MIB: usize = 256;
 
 impl Default for RefineOptions {
     fn default() -> Self {
@@ -530,6 +540,7 @@ impl Default for RefineOptions {
             refine_all_frames: false,
             match_overlapping: 0,
             rolling_shutter: RollingShutter::Seconds(0.0),
+            record_memory: RECORD_MEMORY_MIB,
         }
     }
 }

@@ -14,6 +14,7 @@ use crate::mapper::init::{PairMatches, two_view};
 use crate::mapper::{Mapper, RegisterFailure, Registration};
 use crate::options::SlamOptions;
 use crate::options::{GlobalBaTolerance, KEYFRAME_TWO_VIEW_TRIALS};
+use crate::records::SpillConfig;
 use crate::timing::{Stage, StageTimings};
 use colslam_estimators::TwoViewConfig;
 use colslam_features::{Match, flow_score};
@@ -21,6 +22,7 @@ use colslam_io::Frame;
 use colslam_scene::ImageId;
 use rayon::prelude::*;
 use std::collections::{HashSet, VecDeque};
+use std::path::PathBuf;
 use std::sync::Arc;
 
 /// The geometric verification of a tracked frame against its reference
@@ -256,6 +258,12 @@ pub struct Slam {
     frames: Vec<FrameId>,
     timings: StageTimings,
     stats: RunStats,
+    /// Where the maps' records spill beyond their memory budget
+    /// (`--record-memory`; [`crate::records`]).
+    spill: Option<SpillConfig>,
+    /// Set by an interruption (Ctrl-C): [`Slam::finish`] stops between its
+    /// stages with [`SlamError::Cancelled`].
+    interrupt: Option<Arc<std::sync::atomic::AtomicBool>>,
 }
 
 impl std::fmt::Debug for Slam {
@@ -286,7 +294,37 @@ impl Slam {
             frames: Vec::new(),
             timings: StageTimings::default(),
             stats: RunStats::default(),
-        })
+            spill: None,
+            interrupt: None,
+        }
+        .with_spill(None))
+    }
+
+    /// Records spill to a file named `prefix` + `PID-N` in `dir` (the
+    /// driver: beside the output folder), or to the system's temporary
+    /// folder without `dir`, once they exceed `--record-memory`.
+    pub fn with_spill(mut self, dir: Option<(PathBuf, String)>) -> Self {
+        let budget = self.opts.refine.record_memory.saturating_mul(1 << 20);
+        self.spill = Some(match dir {
+            Some((dir, prefix)) => SpillConfig { dir, prefix, budget },
+            None => SpillConfig::temp(budget),
+        });
+        self
+    }
+
+    /// An interruption flag checked between the stages of [`Slam::finish`].
+    pub fn set_interrupt(&mut self, flag: Arc<std::sync::atomic::AtomicBool>) {
+        self.interrupt = Some(flag);
+    }
+
+    /// `Err(Cancelled)` once the interruption flag is set.
+    fn check_interrupt(&self) -> Result<(), SlamError> {
+        match &self.interrupt {
+            Some(f) if f.load(std::sync::atomic::Ordering::SeqCst) => {
+                Err(SlamError::Cancelled { frame: self.frames.len() })
+            }
+            _ => Ok(()),
+        }
     }
 
     /// Sets a ground-truth trajectory for diagnostics: the keyframes' ATE
@@ -403,7 +441,10 @@ impl Slam {
         let init = Mapper::initialize(map_index, &window, &pair_matches, &camera, &self.opts, &mut self.timings)?;
         self.timings.add(Stage::Initialization, started.elapsed());
         match init {
-            Some((map, i, j)) => self.start_map(map, window, i, j),
+            Some((mut map, i, j)) => {
+                map.set_record_spill(self.spill.clone());
+                self.start_map(map, window, i, j)
+            }
             None => {
                 self.initialization_failed(window, at_end);
                 Ok(())
@@ -657,8 +698,8 @@ impl Slam {
         }
         self.stats.forced_keyframes += 1;
         tracing::debug!("frame {}: keyframe (previous frame forced) against keyframe {}", prev.index(), reference.0);
-        if let Some(r) = self.tracking().and_then(|t| t.map.record_mut(rec_idx)) {
-            r.promoted = true;
+        if let Some(t) = self.tracking() {
+            t.map.promote_record(rec_idx);
         }
         Ok(true)
     }
@@ -677,7 +718,7 @@ impl Slam {
         let Some(t) = self.tracking() else { return Ok(()) };
         let mut rec = FrameRecord::new(&data);
         rec.add_matches(&data, kf_id, &matches);
-        let rec_idx = t.map.add_record(rec);
+        let rec_idx = t.map.add_record(rec)?;
         t.lost = if untracked { t.lost + 1 } else { 0 };
         if t.pending.len() < MAX_PENDING_FRAMES {
             t.pending.push((data.clone(), rec_idx));
@@ -715,9 +756,7 @@ impl Slam {
             pending.par_iter().map(|(f, idx)| Ok((*idx, frontend.match_frames(f, data)?))).collect()
         });
         for ((f, _), (idx, ms)) in pending.iter().zip(extra?) {
-            if let Some(r) = t.map.record_mut(idx) {
-                r.add_matches(f, image_id, &ms);
-            }
+            t.map.add_record_matches(idx, f, image_id, &ms);
         }
         t.prev = None;
         t.reference = None;
@@ -794,6 +833,7 @@ impl Slam {
         }
         let mut finished = std::mem::take(&mut self.finished);
         for map in &mut finished {
+            self.check_interrupt()?;
             if self.opts.mapper.cull_keyframes {
                 let n = map.cull_all_keyframes()?;
                 tracing::debug!("map {}: {n} keyframes culled at the end", map.index());
@@ -806,7 +846,11 @@ impl Slam {
         let kept = self.merge_maps(finished)?;
         let mut maps = Vec::new();
         for map in kept {
-            maps.push(self.localize_map(map)?);
+            self.check_interrupt()?;
+            let mut done = self.localize_map(map)?;
+            // Every frame is localised: the records (and their file) go.
+            done.map.release_records();
+            maps.push(done);
         }
         // Largest first; ties by earlier map.
         maps.sort_by(|a, b| b.poses.len().cmp(&a.poses.len()).then(a.map.index().cmp(&b.map.index())));
@@ -859,7 +903,7 @@ impl Slam {
             &self.orphans
         };
         let extra = map.relocalization_records(orphans, &self.frontend, &mut self.timings)?;
-        map.add_records(extra);
+        map.add_records(extra)?;
         // Every normalised coordinate from the map's final camera.
         map.refresh_all()?;
         let loc = map.localize_all(&self.opts, &mut self.timings)?;

@@ -392,6 +392,11 @@ pub struct RunHooks<'a> {
     /// frames are read and the run finishes with the frames so far (outputs
     /// are written as usual, and the report says where it stopped).
     pub cancel: Vec<Arc<AtomicBool>>,
+    /// Interruption flag (Ctrl-C), checked before every frame and between
+    /// the final stages: once set, the run ends with
+    /// [`SlamError::Cancelled`] and writes nothing; its temporary files and
+    /// staging folder are removed as it unwinds.
+    pub interrupt: Option<Arc<AtomicBool>>,
     /// Called once before the first frame.
     pub on_start: Option<Hook<'a, RunStart>>,
     /// Called with every decoded frame before the pipeline processes it.
@@ -407,6 +412,7 @@ impl<'a> RunHooks<'a> {
         self.cancel.extend(other.cancel);
         Self {
             cancel: self.cancel,
+            interrupt: self.interrupt.or(other.interrupt),
             on_start: chain(self.on_start, other.on_start),
             before_frame: chain(self.before_frame, other.before_frame),
             after_frame: chain(self.after_frame, other.after_frame),
@@ -416,6 +422,11 @@ impl<'a> RunHooks<'a> {
     /// True once a stop flag is set.
     pub fn cancelled(&self) -> bool {
         self.cancel.iter().any(|c| c.load(Ordering::SeqCst))
+    }
+
+    /// True once the interruption flag is set.
+    pub fn interrupted(&self) -> bool {
+        self.interrupt.as_ref().is_some_and(|c| c.load(Ordering::SeqCst))
     }
 }
 
@@ -494,7 +505,12 @@ pub fn run(config: &RunConfig, events: EventSink, mut hooks: RunHooks<'_>) -> Re
     } else if resolved.source.is_prior() {
         tracing::info!("intrinsics: kept as given (--refine-intrinsics refines them)");
     }
-    let mut slam = Slam::new(slam_opts.clone(), &resolved.camera, events)?;
+    // Records beyond the memory budget spill beside the output: the file
+    // system the user chose for it, cleaned up with its staging folder.
+    let mut slam = Slam::new(slam_opts.clone(), &resolved.camera, events)?.with_spill(Some(output.scratch_prefix()));
+    if let Some(flag) = &hooks.interrupt {
+        slam.set_interrupt(flag.clone());
+    }
     if let Some(gt) = &config.gt {
         slam.set_debug_ground_truth(colslam_eval::trajectory::Trajectory::read_tum(gt)?);
     }
@@ -750,6 +766,9 @@ fn consume(
 ) -> Result<Fed, SlamError> {
     let mut fed = Fed::default();
     for item in items {
+        if hooks.interrupted() {
+            return Err(SlamError::Cancelled { frame: fed.processed });
+        }
         if hooks.cancelled() {
             fed.stopped_after = Some(fed.processed);
             return Ok(fed);
@@ -1131,5 +1150,37 @@ mod tests {
         a.store(true, Ordering::SeqCst);
         assert!(hooks.cancelled(), "the first flag stops the run");
         assert!(!RunHooks::default().then(RunHooks::default()).cancelled());
+    }
+
+    /// An error in the middle of a run (here an interruption, as Ctrl-C
+    /// sends it) ends it with `Cancelled`, and the record store it had
+    /// spilled to, its staging folder and its lock are gone.
+    #[test]
+    fn an_interrupted_run_leaves_no_record_store() {
+        let dir = tempfile::tempdir().unwrap_or_else(|e| panic!("tempdir: {e}"));
+        let input = sequence(dir.path(), 30);
+        let out = dir.path().join("out");
+        let mut c = config(&input, &out, 30, false);
+        c.options.slam.refine.record_memory = 0;
+        let flag = Arc::new(AtomicBool::new(false));
+        let (seen, setter, count) = (std::cell::RefCell::new(None), flag.clone(), std::cell::Cell::new(0));
+        let hooks = RunHooks {
+            interrupt: Some(flag),
+            after_frame: Some(Box::new(|_: &Slam| {
+                count.set(count.get() + 1);
+                let stores: Vec<String> =
+                    names(dir.path()).into_iter().filter(|n| n.starts_with(".out.scratch-")).collect();
+                if !stores.is_empty() && seen.borrow().is_none() {
+                    *seen.borrow_mut() = Some((count.get(), stores));
+                    setter.store(true, Ordering::SeqCst);
+                }
+            })),
+            ..RunHooks::default()
+        };
+        let r = run(&c, EventSink::none(), hooks);
+        let (frame, stores) = seen.into_inner().unwrap_or_else(|| panic!("the run never spilled a record"));
+        assert_eq!(stores.len(), 1, "{stores:?}");
+        assert!(matches!(r, Err(SlamError::Cancelled { frame: f }) if f == frame), "{r:?}");
+        assert_eq!(names(dir.path()), ["seq"], "no record store, staging folder, lock or output left");
     }
 }

@@ -523,6 +523,7 @@ pub fn run_live(
         let (camera_tx, frame_tx) = (tx.clone(), tx);
         let hooks = RunHooks {
             cancel: vec![Arc::clone(&shared.cancel)],
+            interrupt: None,
             on_start: Some(Box::new(move |s: &RunStart| {
                 let _ = camera_tx.send(BridgeMsg::Start { camera: s.camera.clone(), frames: s.frames });
             })),

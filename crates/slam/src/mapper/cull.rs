@@ -15,10 +15,10 @@
 //! relinked the same way.
 
 use super::state::Mapper;
+use crate::error::SlamError;
 use crate::frame::{FrameRecord, RecordObs};
 use crate::options::{CULL_MIN_OBSERVERS, CULL_RECORD_LINKS, CULL_REDUNDANT_SHARE, SlamOptions};
 use colslam_scene::{ImageId, TrackElement};
-use colslam_sfm::SfmError;
 use std::collections::HashMap;
 
 /// For each keypoint of a culled keyframe, the keypoints of other keyframes
@@ -30,7 +30,7 @@ impl Mapper {
     /// newest keyframe, which stays, as do the initial pair's); returns how
     /// many were culled. Candidates are checked in the bundle's order, each
     /// against the map as the previous culls left it.
-    pub(super) fn cull_keyframes(&mut self, image_id: ImageId, opts: &SlamOptions) -> Result<usize, SfmError> {
+    pub(super) fn cull_keyframes(&mut self, image_id: ImageId, opts: &SlamOptions) -> Result<usize, SlamError> {
         let bundle: Vec<ImageId> = self.local_bundle(image_id, opts).into_iter().filter(|&id| id != image_id).collect();
         self.cull_among(bundle)
     }
@@ -41,14 +41,14 @@ impl Mapper {
     /// (no newer keyframe's bundle holds them) and old keyframes outside
     /// every later bundle are never checked otherwise. Returns how many were
     /// culled.
-    pub fn cull_all_keyframes(&mut self) -> Result<usize, SfmError> {
+    pub fn cull_all_keyframes(&mut self) -> Result<usize, SlamError> {
         let all: Vec<ImageId> = self.keyframes.iter().map(|k| k.image_id).collect();
         self.cull_among(all)
     }
 
     /// Culls the redundant keyframes among `ids` (never the initial pair's),
     /// each checked against the map as the previous culls left it.
-    fn cull_among(&mut self, ids: Vec<ImageId>) -> Result<usize, SfmError> {
+    fn cull_among(&mut self, ids: Vec<ImageId>) -> Result<usize, SlamError> {
         let (first, second) = self.initial_frames;
         let candidates: Vec<ImageId> = ids
             .into_iter()
@@ -102,7 +102,7 @@ impl Mapper {
 
     /// Removes the keyframe of image `id` from the map, turning its frame
     /// into a record and relinking the records that referred to it.
-    fn cull(&mut self, id: ImageId) -> Result<(), SfmError> {
+    fn cull(&mut self, id: ImageId) -> Result<(), SlamError> {
         let Some(k) = self.keyframe_position(id) else { return Ok(()) };
         let links = self.links_of(id);
         let kf = self.keyframes.remove(k);
@@ -113,14 +113,10 @@ impl Mapper {
                 record.obs.push(RecordObs::new(kp as u32, *px, el.image_id, el.point2d_idx));
             }
         }
-        for r in &mut self.records {
-            relink(r, id, &links);
-            // A frame promoted to keyframe and culled is localised again.
-            if r.frame.index == kf.data.index() {
-                r.promoted = false;
-            }
-        }
-        self.records.push(record);
+        // Records that matched it follow its keypoints' first links.
+        let first = links.iter().map(|l| l.first().copied()).collect();
+        self.records.cull(id, kf.data.index(), first);
+        self.records.push(record)?;
         let report = self.rec.delete_image(id)?;
         self.graph.delete_image(id)?;
         if self.sigmas.contains_key(&id) {
@@ -159,30 +155,4 @@ impl Mapper {
             })
             .collect()
     }
-}
-
-/// Replaces a record's observations of keyframe `id` by its keypoints'
-/// first link (dropped without one), keeping the rolling-shutter
-/// compensated coordinates beside their observations.
-fn relink(r: &mut FrameRecord, id: ImageId, links: &Links) {
-    if !r.obs.iter().any(|o| o.keyframe == id) {
-        return;
-    }
-    let compensated = r.compensated.len() == r.obs.len();
-    let mut obs = Vec::with_capacity(r.obs.len());
-    let mut comp = Vec::new();
-    for (k, o) in r.obs.iter().enumerate() {
-        let o = if o.keyframe == id {
-            let Some(el) = links.get(o.keyframe_kp as usize).and_then(|l| l.first()) else { continue };
-            o.relinked(el.image_id, el.point2d_idx)
-        } else {
-            *o
-        };
-        obs.push(o);
-        if compensated {
-            comp.push(r.compensated[k]);
-        }
-    }
-    r.obs = obs;
-    r.compensated = comp;
 }

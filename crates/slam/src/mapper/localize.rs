@@ -3,7 +3,8 @@
 //! (COLMAP registers every image).
 
 use super::state::Mapper;
-use crate::frame::{FramePose, FrameRecord};
+use crate::error::SlamError;
+use crate::frame::{FrameId, FramePose, FrameRecord};
 use crate::options::{GlobalBaTolerance, SlamOptions};
 use crate::timing::{Stage, StageTimings};
 use colslam_camera::Camera;
@@ -12,7 +13,6 @@ use colslam_geometry::{Vec2, Vec3};
 use colslam_scene::{Image, ImageId, Point3DId, TrackElement};
 use colslam_sfm::SfmError;
 use rayon::prelude::*;
-use std::borrow::Cow;
 use std::collections::{HashMap, HashSet};
 
 /// A localised frame's PnP inliers: (normalised keypoint, 3D point).
@@ -29,25 +29,10 @@ pub struct Localization {
     pub inliers: HashMap<usize, FrameInliers>,
 }
 
-/// One record per frame: a frame can hold several (tracked by two maps that
-/// were merged, tracked backwards and relocalised), whose observations are
-/// pooled; a frame promoted anywhere is a keyframe. A frame with one record
-/// borrows it: copying every record would double their memory at the end
-/// of the run, where it peaks.
-pub(crate) fn pool_records(records: &[FrameRecord]) -> Vec<Cow<'_, FrameRecord>> {
-    let mut merged: Vec<Cow<'_, FrameRecord>> = Vec::new();
-    let mut slot: HashMap<usize, usize> = HashMap::new();
-    for r in records {
-        match slot.get(&r.frame.index) {
-            Some(&k) => merged[k].to_mut().extend(r),
-            None => {
-                slot.insert(r.frame.index, merged.len());
-                merged.push(Cow::Borrowed(r));
-            }
-        }
-    }
-    merged
-}
+/// Frames localised per batch: the spilled records of one batch are read
+/// back into memory together, so the batch bounds that memory while leaving
+/// the threads enough frames to share.
+const LOCALIZE_BATCH: usize = 256;
 
 impl Mapper {
     /// Poses of the registered keyframes, in keyframe order.
@@ -67,30 +52,35 @@ impl Mapper {
 
     /// Poses of every keyframe and every localised non-keyframe, in frame
     /// order, and the records that could not be localised.
-    pub fn localize_all(&self, opts: &SlamOptions, timings: &mut StageTimings) -> Result<Localization, SfmError> {
+    pub fn localize_all(&self, opts: &SlamOptions, timings: &mut StageTimings) -> Result<Localization, SlamError> {
         let focal = self.focal()?;
         let camera = self.camera()?;
         let mut poses = self.keyframe_poses();
         let keyframe_frames: HashSet<usize> = poses.iter().map(|p| p.frame.index).collect();
         let started = std::time::Instant::now();
-        let merged = pool_records(&self.records);
-        let results: Vec<(usize, Option<(FramePose, FrameInliers)>)> = merged
-            .par_iter()
-            .enumerate()
-            .filter(|(_, r)| {
-                !r.promoted && !keyframe_frames.contains(&r.frame.index) && opts.refine.localize_all_frames
-            })
-            .map(|(i, r)| (i, self.localize(r, camera, focal, opts)))
-            .collect();
+        // One record per frame: a frame can hold several (tracked by two
+        // maps that were merged, tracked backwards and relocalised), whose
+        // observations are pooled; a frame promoted anywhere is a keyframe.
+        let mut results: Vec<(FrameId, Option<(FramePose, FrameInliers)>)> = Vec::new();
+        for batch in self.records.groups().chunks(LOCALIZE_BATCH) {
+            let pooled = batch.iter().map(|g| self.records.pooled(g)).collect::<Result<Vec<_>, _>>()?;
+            let done: Vec<(FrameId, Option<(FramePose, FrameInliers)>)> = pooled
+                .par_iter()
+                .flatten()
+                .filter(|r| !r.promoted && !keyframe_frames.contains(&r.frame.index) && opts.refine.localize_all_frames)
+                .map(|r| (r.frame.clone(), self.localize(r, camera, focal, opts)))
+                .collect();
+            results.extend(done);
+        }
         timings.add(Stage::Localization, started.elapsed());
         let mut out = Localization::default();
-        for (i, res) in results {
+        for (frame, res) in results {
             match res {
                 Some((p, inl)) => {
                     out.inliers.insert(p.frame.index, inl);
                     poses.push(p);
                 }
-                None => out.failed.push(merged[i].frame.clone()),
+                None => out.failed.push(frame),
             }
         }
         // One pose per frame (a keyframe first: the sort is stable and

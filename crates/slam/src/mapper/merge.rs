@@ -239,8 +239,8 @@ impl Mapper {
         }
         self.order_keyframes_by_time();
         self.culled += source.culled;
-        for r in &source.records {
-            let mut r = r.clone();
+        for r in source.records.all()? {
+            let mut r = r;
             // Maps are joined before rolling-shutter compensation, which
             // runs on the joined map: nothing compensated to carry.
             r.compensated.clear();
@@ -251,7 +251,7 @@ impl Mapper {
                 }
                 None => false,
             });
-            self.records.push(r);
+            self.records.push(r)?;
         }
         Ok(())
     }

@@ -36,7 +36,8 @@
 
 use super::localize::Localization;
 use super::state::Mapper;
-use crate::frame::FramePose;
+use crate::error::SlamError;
+use crate::frame::{FramePose, FrameRecord};
 use crate::options::{GlobalBaTolerance, RollingShutter, SlamOptions};
 use crate::timing::{Stage, StageTimings};
 use colslam_camera::Camera;
@@ -234,6 +235,40 @@ pub fn compensate(camera: &Camera, px: &Vec2, w: &Vec3, readout: f64) -> Option<
     (px2.iter().chain(n2.iter()).all(|v| v.is_finite())).then_some((px2, n2))
 }
 
+/// A rolling-shutter compensation of the records: the camera, the frames'
+/// angular velocities and the readout it was made with. Records spilled to
+/// disk are compensated with it when they are read back
+/// ([`crate::records::RecordStore::compensate`]).
+#[derive(Debug, Clone)]
+pub struct Compensation {
+    /// The map's camera when the compensation ran.
+    pub camera: Camera,
+    /// Angular velocity of each frame that has one, by frame index.
+    pub velocities: HashMap<usize, Vec3>,
+    /// Readout time, seconds.
+    pub readout: f64,
+}
+
+impl Compensation {
+    /// Sets the record's compensated coordinates from its measured pixels.
+    pub fn apply(&self, r: &mut FrameRecord) {
+        let camera = &self.camera;
+        let w = self.velocities.get(&r.frame.index);
+        r.compensated = r
+            .obs
+            .iter()
+            .map(|o| {
+                // NaN: not undistortable, skipped by localisation.
+                let Some(measured) = crate::frame::undistort(camera, &o.pixel()) else {
+                    return Vec2::repeat(f64::NAN);
+                };
+                let px = camera.img_from_normalized(&measured);
+                w.and_then(|w| compensate(camera, &px, w, self.readout)).map_or(measured, |(_, n)| n)
+            })
+            .collect();
+    }
+}
+
 impl Mapper {
     /// Estimates the readout time (seconds) of a finished map from its first
     /// localisation (`--rolling-shutter auto`): for each readout tried, the
@@ -300,7 +335,7 @@ impl Mapper {
         first: Localization,
         opts: &SlamOptions,
         timings: &mut StageTimings,
-    ) -> Result<(Localization, f64), SfmError> {
+    ) -> Result<(Localization, f64), SlamError> {
         match opts.refine.rolling_shutter {
             RollingShutter::Seconds(s) if s > 0.0 => Ok((self.compensate_rolling_shutter(first, s, opts, timings)?, s)),
             RollingShutter::Seconds(_) => Ok((first, 0.0)),
@@ -320,7 +355,7 @@ impl Mapper {
         first: Localization,
         opts: &SlamOptions,
         timings: &mut StageTimings,
-    ) -> Result<(Localization, f64), SfmError> {
+    ) -> Result<(Localization, f64), SlamError> {
         let mut rounds: Vec<(f64, f64)> = Vec::new();
         let (mut loc, mut compensated) = (first, 0.0);
         for _ in 0..AUTO_ROUNDS {
@@ -359,7 +394,7 @@ impl Mapper {
         readout: f64,
         opts: &SlamOptions,
         timings: &mut StageTimings,
-    ) -> Result<Localization, SfmError> {
+    ) -> Result<Localization, SlamError> {
         let w = angular_velocities(&first.poses, MAX_GAP_S);
         let Some(moved) = self.move_observations(&w, readout)? else { return Ok(first) };
         self.global_refine(GlobalBaTolerance::Periodic, opts, timings)?;
@@ -378,7 +413,7 @@ impl Mapper {
         &mut self,
         opts: &SlamOptions,
         timings: &mut StageTimings,
-    ) -> Result<Localization, SfmError> {
+    ) -> Result<Localization, SlamError> {
         self.global_refine(GlobalBaTolerance::Converged, opts, timings)?;
         self.rec.update_point_errors()?;
         self.localize_all(opts, timings)
@@ -398,24 +433,10 @@ impl Mapper {
         }
         let moved = self.move_keyframe_observations(velocities, readout)?;
         let camera = self.camera()?.clone();
-        for r in &mut self.records {
-            // Every record keeps its coordinates from here on, measured where
-            // it has no velocity: the global refinements below may change
-            // the camera, and the records must stay as compensated now.
-            let w = velocities.get(&r.frame.index);
-            r.compensated = r
-                .obs
-                .iter()
-                .map(|o| {
-                    // NaN: not undistortable, skipped by localisation.
-                    let Some(measured) = crate::frame::undistort(&camera, &o.pixel()) else {
-                        return Vec2::repeat(f64::NAN);
-                    };
-                    let px = camera.img_from_normalized(&measured);
-                    w.and_then(|w| compensate(&camera, &px, w, readout)).map_or(measured, |(_, n)| n)
-                })
-                .collect();
-        }
+        // Every record keeps its coordinates from here on, measured where it
+        // has no velocity: the global refinements below may change the
+        // camera, and the records must stay as compensated now.
+        self.records.compensate(Compensation { camera, velocities: velocities.clone(), readout });
         tracing::debug!(
             "map {}: rolling shutter ({:.1} ms readout): {moved} keyframe observations moved, {} frames with a velocity",
             self.index,

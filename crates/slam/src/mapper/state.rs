@@ -1,8 +1,10 @@
 //! The mapper's state and the steps that only read or reset it: accessors,
 //! filtering, the global refinement schedule, colouring.
 
+use crate::error::SlamError;
 use crate::frame::{FrameData, FrameRecord};
 use crate::options::{GlobalBaTolerance, SlamOptions};
+use crate::records::{RecordStore, SpillConfig};
 use crate::timing::{Stage, StageTimings};
 use colslam_camera::Camera;
 use colslam_scene::{CameraId, ImageId, Point3DId, Reconstruction, SceneError};
@@ -39,8 +41,9 @@ pub struct Mapper {
     /// last) and the recent ones a new keyframe is matched against: frame
     /// order, except while tracking backwards ([`Self::order_keyframes_by_distance_to`]).
     pub(super) keyframes: Vec<Keyframe>,
-    /// Non-keyframes to localise.
-    pub(super) records: Vec<FrameRecord>,
+    /// Non-keyframes to localise, in memory or spilled to disk
+    /// (`crate::records`).
+    pub(super) records: RecordStore,
     /// Frame indices of the initial pair.
     pub(super) initial_frames: (usize, usize),
     /// Registered images and points at the last global BA.
@@ -79,7 +82,7 @@ impl Mapper {
             graph: CorrespondenceGraph::new(),
             camera_id,
             keyframes: Vec::new(),
-            records: Vec::new(),
+            records: RecordStore::default(),
             initial_frames: (0, 0),
             last_global: (0, 0),
             sigmas: KeypointSigmas::default(),
@@ -161,9 +164,27 @@ impl Mapper {
         self.culled
     }
 
-    /// Records of the non-keyframes.
-    pub fn records(&self) -> &[FrameRecord] {
+    /// Records of the non-keyframes, pooled by frame, read into memory
+    /// (tests and diagnostics; localisation reads them a batch at a time).
+    pub fn records(&self) -> Result<Vec<FrameRecord>, SlamError> {
+        self.records.pooled_all()
+    }
+
+    /// The store of the records.
+    pub fn record_store(&self) -> &RecordStore {
         &self.records
+    }
+
+    /// Where and when the records spill to disk from now on (`None`: they
+    /// stay in memory).
+    pub fn set_record_spill(&mut self, config: Option<SpillConfig>) {
+        self.records.set_config(config);
+    }
+
+    /// Drops the records and their temporary file, once every frame is
+    /// localised.
+    pub fn release_records(&mut self) {
+        self.records.clear();
     }
 
     /// Frame indices of the initial pair.
@@ -172,30 +193,34 @@ impl Mapper {
     }
 
     /// Adds the record of a non-keyframe; returns its index.
-    pub fn add_record(&mut self, record: FrameRecord) -> usize {
-        self.records.push(record);
-        self.records.len() - 1
+    pub fn add_record(&mut self, record: FrameRecord) -> Result<usize, SlamError> {
+        self.records.push(record)
     }
 
-    /// The record at `index` (from [`Self::add_record`]).
-    pub fn record_mut(&mut self, index: usize) -> Option<&mut FrameRecord> {
-        self.records.get_mut(index)
+    /// Appends the matches of `data` to keyframe `kf` to record `index`
+    /// (from [`Self::add_record`]).
+    pub fn add_record_matches(
+        &mut self,
+        index: usize,
+        data: &FrameData,
+        kf: ImageId,
+        matches: &[colslam_features::Match],
+    ) {
+        self.records.add_matches(index, data, kf, matches);
     }
 
-    /// Adds records of frames to localise, pooling the observations of a
-    /// frame that already has one.
-    pub fn add_records(&mut self, extra: Vec<FrameRecord>) {
-        let mut by_index: HashMap<usize, usize> =
-            self.records.iter().enumerate().map(|(i, r)| (r.frame.index, i)).collect();
+    /// Marks record `index` as promoted: its frame became a keyframe.
+    pub fn promote_record(&mut self, index: usize) {
+        self.records.promote(index);
+    }
+
+    /// Adds records of frames to localise; those of a frame that already
+    /// has one are pooled with it when localised ([`RecordStore::groups`]).
+    pub fn add_records(&mut self, extra: Vec<FrameRecord>) -> Result<(), SlamError> {
         for r in extra {
-            match by_index.get(&r.frame.index) {
-                Some(&i) => self.records[i].extend(&r),
-                None => {
-                    by_index.insert(r.frame.index, self.records.len());
-                    self.records.push(r);
-                }
-            }
+            self.records.push(r)?;
         }
+        Ok(())
     }
 
     /// Orders the keyframes by distance in time to frame `index`, nearest

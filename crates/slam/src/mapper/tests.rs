@@ -7,7 +7,6 @@
 //! the points).
 
 use super::init::{PairMatches, two_view};
-use super::localize::pool_records;
 use super::{Keyframe, Mapper, RegisterFailure, Registration};
 use crate::frame::{FrameData, FrameId, FrameRecord, RecordObs};
 use crate::frontend::Frontend;
@@ -1114,11 +1113,12 @@ fn merge_keeps_a_frame_of_both_maps_as_one_image() {
 fn merge_carries_the_source_records_over() {
     let scene = Scene::translating_with(14, 200);
     let (mut a, mut b) = two_maps(&scene, &A_FRAMES, &B_FRAMES);
-    b.add_record(record(&scene, &b, 8, &[7, 9]));
-    let obs = b.records()[0].obs.len();
+    b.add_record(record(&scene, &b, 8, &[7, 9])).unwrap();
+    let obs = b.records().unwrap()[0].obs.len();
     merge(&scene, &mut a, &b);
-    assert_eq!(a.records().len(), 1);
-    let r = &a.records()[0];
+    let records = a.records().unwrap();
+    assert_eq!(records.len(), 1);
+    let r = &records[0];
     assert_eq!((r.frame.index, r.obs.len()), (8, obs));
     let names: BTreeSet<&str> = r.obs.iter().map(|o| a.rec.image(o.keyframe).unwrap().name.as_str()).collect();
     assert_eq!(names, BTreeSet::from(["000007.png", "000009.png"]));
@@ -1156,7 +1156,7 @@ fn relocalization_records_match_the_nearest_keyframes_in_time() {
     let kfs: BTreeSet<ImageId> = r.obs.iter().map(|o| o.keyframe).collect();
     assert_eq!(kfs, nearest.iter().map(|&f| image_of(&map, f)).collect());
     assert_eq!(r.obs.len(), nearest.iter().map(|&f| scene.matches(5, f).len()).sum::<usize>());
-    map.add_records(records);
+    map.add_records(records).unwrap();
     let loc = map.localize_all(&opts(), &mut StageTimings::default()).unwrap();
     assert!(loc.failed.is_empty());
     let p = loc.poses.iter().find(|p| p.frame.index == 5).expect("localised");
@@ -1198,15 +1198,15 @@ fn record(scene: &Scene, map: &Mapper, f: usize, to: &[usize]) -> FrameRecord {
 fn localize_all_localizes_records_with_enough_observations_and_reports_the_others() {
     let scene = Scene::translating(9);
     let mut map = scene.exact_map(0, &[0, 2, 4, 6, 8]);
-    map.add_record(record(&scene, &map, 1, &[0, 2]));
-    map.add_record(record(&scene, &map, 3, &[2, 4]));
+    map.add_record(record(&scene, &map, 1, &[0, 2])).unwrap();
+    map.add_record(record(&scene, &map, 3, &[2, 4])).unwrap();
     let mut few = record(&scene, &map, 5, &[4]);
     few.obs.truncate(10);
-    map.add_record(few);
+    map.add_record(few).unwrap();
     let mut promoted = record(&scene, &map, 7, &[6, 8]);
     promoted.promoted = true;
-    map.add_record(promoted);
-    map.add_record(record(&scene, &map, 4, &[2]));
+    map.add_record(promoted).unwrap();
+    map.add_record(record(&scene, &map, 4, &[2])).unwrap();
     let loc = map.localize_all(&opts(), &mut StageTimings::default()).unwrap();
     let frames: Vec<(usize, bool)> = loc.poses.iter().map(|p| (p.frame.index, p.keyframe)).collect();
     assert_eq!(frames, vec![(0, true), (1, false), (2, true), (3, false), (4, true), (6, true), (8, true)]);
@@ -1238,14 +1238,14 @@ fn localize_all_pools_the_records_of_a_frame() {
         |o: &&RecordObs| map.rec.image(o.keyframe).unwrap().points2d[o.keyframe_kp as usize].point3d_id.is_some();
     let mapped: Vec<RecordObs> = whole.obs.iter().filter(has_point).copied().collect();
     for part in [&mapped[..20], &mapped[20..40]] {
-        map.add_record(FrameRecord { obs: part.to_vec(), ..whole.clone() });
+        map.add_record(FrameRecord { obs: part.to_vec(), ..whole.clone() }).unwrap();
     }
     let loc = map.localize_all(&opts(), &mut StageTimings::default()).unwrap();
     assert!(loc.failed.is_empty());
     let p = loc.poses.iter().find(|p| p.frame.index == 1).expect("localised");
     assert!(pose_error(&Sim3::identity(), &p.cam_from_world, &scene.poses[1]) < EXACT);
     let mut map = scene.exact_map(0, &[0, 2]);
-    map.add_record(FrameRecord { obs: mapped[..20].to_vec(), ..whole });
+    map.add_record(FrameRecord { obs: mapped[..20].to_vec(), ..whole }).unwrap();
     let loc = map.localize_all(&opts(), &mut StageTimings::default()).unwrap();
     assert_eq!(loc.failed.len(), 1);
 }
@@ -1267,8 +1267,8 @@ fn localization_ignores_deregistered_keyframes() {
 fn refine_with_all_frames_adds_the_localized_frames() {
     let scene = Scene::translating(5);
     let mut map = scene.exact_map(0, &[0, 2, 4]);
-    map.add_record(record(&scene, &map, 1, &[0, 2]));
-    map.add_record(record(&scene, &map, 3, &[2, 4]));
+    map.add_record(record(&scene, &map, 1, &[0, 2])).unwrap();
+    map.add_record(record(&scene, &map, 3, &[2, 4])).unwrap();
     let mut t = StageTimings::default();
     let loc = map.localize_all(&opts(), &mut t).unwrap();
     let mut poses = loc.poses.clone();
@@ -1307,14 +1307,19 @@ fn obs_kps(r: &FrameRecord) -> Vec<u32> {
 }
 
 #[test]
-fn pool_records_pools_observations_of_a_frame_and_keeps_promoted() {
+fn pooling_pools_observations_of_a_frame_and_keeps_promoted() {
     let records = [
         bare_record(3, &[1, 2], false),
         bare_record(5, &[7], false),
         bare_record(3, &[4], true),
         bare_record(3, &[9], false),
     ];
-    let pooled = pool_records(&records);
+    let mut store = crate::records::RecordStore::default();
+    for r in records {
+        store.push(r).unwrap();
+    }
+    let groups = store.groups();
+    let pooled: Vec<_> = groups.iter().map(|g| store.pooled(g).unwrap().unwrap()).collect();
     assert_eq!(pooled.iter().map(|r| r.frame.index).collect::<Vec<_>>(), vec![3, 5]);
     assert_eq!(obs_kps(&pooled[0]), vec![1, 2, 4, 9]);
     assert!(pooled[0].promoted, "promoted anywhere is promoted");
@@ -1328,9 +1333,10 @@ fn pool_records_pools_observations_of_a_frame_and_keeps_promoted() {
 fn add_records_pools_observations_of_a_known_frame() {
     let scene = Scene::translating(1);
     let mut map = Mapper::empty(0, &scene.camera);
-    assert_eq!(map.add_record(bare_record(3, &[1], false)), 0);
-    map.add_records(vec![bare_record(3, &[2], false), bare_record(9, &[5], false), bare_record(9, &[6], false)]);
-    let records = map.records();
+    assert_eq!(map.add_record(bare_record(3, &[1], false)).unwrap(), 0);
+    map.add_records(vec![bare_record(3, &[2], false), bare_record(9, &[5], false), bare_record(9, &[6], false)])
+        .unwrap();
+    let records = map.records().unwrap();
     assert_eq!(records.iter().map(|r| r.frame.index).collect::<Vec<_>>(), vec![3, 9]);
     assert_eq!(obs_kps(&records[0]), vec![1, 2]);
     assert_eq!(obs_kps(&records[1]), vec![5, 6]);

@@ -20,7 +20,10 @@ fn assert_gone(map: &Mapper, id: ImageId) {
     assert!(map.rec.image(id).is_none(), "image {id:?} still in the model");
     assert!(!map.graph.exists_image(id), "image {id:?} still in the graph");
     assert!(map.rec.points3d().all(|(_, p)| p.track.iter().all(|e| e.image_id != id)));
-    assert!(map.records.iter().all(|r| r.obs.iter().all(|o| o.keyframe != id)), "a record still refers to it");
+    assert!(
+        map.records().unwrap().iter().all(|r| r.obs.iter().all(|o| o.keyframe != id)),
+        "a record still refers to it"
+    );
 }
 
 /// The model is valid as COLMAP defines it and every point keeps two
@@ -39,8 +42,8 @@ fn redundant_keyframes_leave_the_map_and_their_frames_are_still_localised() {
     let mut map = scene.exact_map(0, &[0, 1, 2, 3, 4, 5, 6]);
     map.initial_frames = (0, 1);
     // Frame 7 matched keyframes 5 and 6 only, frame 8 keyframe 5 only.
-    map.add_record(record(&scene, &map, 7, &[5, 6]));
-    map.add_record(record(&scene, &map, 8, &[5]));
+    map.add_record(record(&scene, &map, 7, &[5, 6])).unwrap();
+    map.add_record(record(&scene, &map, 8, &[5])).unwrap();
     let ids: HashMap<usize, ImageId> = (0..7).map(|f| (f, image_of(&map, f))).collect();
     let culled = map.cull_keyframes(ids[&6], &cull_opts()).unwrap();
     let kept = frames_of(&map);
@@ -97,10 +100,10 @@ fn a_promoted_frame_that_is_culled_is_localised_again() {
     map.initial_frames = (0, 1);
     let mut promoted = record(&scene, &map, 3, &[2]);
     promoted.promoted = true;
-    map.add_record(promoted);
+    map.add_record(promoted).unwrap();
     map.cull_keyframes(image_of(&map, 5), &cull_opts()).unwrap();
     assert!(!frames_of(&map).contains(&3), "frame 3 is redundant: {:?}", frames_of(&map));
-    assert!(map.records.iter().all(|r| !r.promoted));
+    assert!(map.records().unwrap().iter().all(|r| !r.promoted));
     let loc = map.localize_all(&opts(), &mut StageTimings::default()).unwrap();
     assert!(loc.poses.iter().any(|p| p.frame.index == 3 && !p.keyframe));
 }

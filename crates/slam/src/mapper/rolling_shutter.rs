@@ -529,9 +529,9 @@ mod tests {
             (10, 0.2, Vec3::new(1.0, 0.1, 0.0)),
             (20, 0.4, Vec3::new(2.0, 0.0, 0.3)),
         ];
-        let mut first = Localization::default();
-        first.poses = kf.iter().map(|&(i, a, c)| at(i, true, a, c)).collect();
-        first.poses.push(at(12, false, 0.25, Vec3::new(1.2, 0.1, 0.05)));
+        let mut poses: Vec<FramePose> = kf.iter().map(|&(i, a, c)| at(i, true, a, c)).collect();
+        poses.push(at(12, false, 0.25, Vec3::new(1.2, 0.1, 0.05)));
+        let first = Localization { poses, ..Default::default() };
         let sim = Sim3 {
             scale: 2.5,
             rotation: Quat::from_scaled_axis(Vec3::new(0.0, 0.3, -0.2)),
@@ -541,10 +541,12 @@ mod tests {
             cam_from_world: sim.transform_world_from_cam(&p.cam_from_world.inverse()).inverse(),
             ..p.clone()
         };
-        let mut after = Localization::default();
-        after.poses = first.poses[..3].iter().map(moved).collect();
         let lost = first.poses[3].frame.clone();
-        after.failed = vec![lost.clone(), crate::frame::FrameId { index: 15, ..lost }];
+        let mut after = Localization {
+            poses: first.poses[..3].iter().map(moved).collect(),
+            failed: vec![lost.clone(), crate::frame::FrameId { index: 15, ..lost }],
+            ..Default::default()
+        };
         assert_eq!(carry_lost_frames(&first, &mut after), 1);
         assert_eq!(after.poses.iter().map(|p| p.frame.index).collect::<Vec<_>>(), [0, 10, 12, 20]);
         // Frame 15 was never localised: still failed.

@@ -112,13 +112,17 @@ fn choose_reference(
     if let Some((i, _)) = nearest {
         return Ok(i);
     }
-    let covered = |k: usize, ms: &[Match]| {
-        map.reconstruction().image(map.keyframes()[k].image_id).map_or(0, |img| {
-            ms.iter().filter(|m| img.points2d.get(m.train as usize).is_some_and(|p| p.point3d_id.is_some())).count()
-        })
-    };
-    let scores: Vec<usize> = candidates.iter().zip(matched).map(|(&k, ms)| covered(k, ms)).collect();
+    let scores: Vec<usize> = candidates.iter().zip(matched).map(|(&k, ms)| map_points_matched(map, k, ms)).collect();
     Ok((0..scores.len()).fold(0, |b, i| if scores[i] > scores[b] { i } else { b }))
+}
+
+/// How many of `matches` (a frame's matches to the keyframe at position
+/// `k`) reach a keypoint of the keyframe that observes a 3D point: the map
+/// points the frame tracks through that keyframe.
+fn map_points_matched(map: &Mapper, k: usize, matches: &[Match]) -> usize {
+    map.reconstruction().image(map.keyframes()[k].image_id).map_or(0, |img| {
+        matches.iter().filter(|m| img.points2d.get(m.train as usize).is_some_and(|p| p.point3d_id.is_some())).count()
+    })
 }
 
 /// A keyframe candidate is refused for too little rotation-compensated flow
@@ -626,11 +630,13 @@ impl Slam {
         self.emitter.frame(&data, frame_flow, flow.score, became);
         if became {
             tracing::debug!(
-                "frame {}: keyframe ({}) against keyframe {}: {} matches, flow {:.4}",
+                "frame {}: keyframe ({}) against keyframe {}: {} matches, {} map points, flow {:.4}",
                 data.index(),
                 if decision.candidate { "candidate" } else { "forced" },
                 kf_id.0,
                 matches.len(),
+                self.current_map()
+                    .map_or(0, |m| m.keyframe_position(kf_id).map_or(0, |k| map_points_matched(m, k, &matches))),
                 flow.score
             );
             if let Some(t) = self.tracking() {

@@ -373,6 +373,25 @@ fn rolling_shutter_compensation_brings_tum_rpy_under_1_5_cm() {
 }
 
 #[test]
+fn rolling_shutter_with_culling_and_reuse_keeps_every_tum_rpy_frame() {
+    // With culling and map reuse, frames 22-24 (the end of a fast turn) lean
+    // on one keyframe, and the compensated BA's filter deletes most of their
+    // map points; they keep their pose relative to their keyframe instead
+    // of being lost (197 of 200 without that).
+    let Some((dir, camera, frames)) = dataset_frames("tum_fr1_rpy_sub") else { return };
+    let gt = Trajectory::read_tum(&dir.join("groundtruth.txt")).expect("ground truth");
+    let mut opts = SlamOptions::default();
+    opts.refine.rolling_shutter = colslam_slam::RollingShutter::Seconds(1.0 / 30.0);
+    opts.mapper.cull_keyframes = true;
+    opts.keyframes.reuse_keyframes = 8;
+    let r = run(&frames, &camera, opts, EventSink::none());
+    assert_eq!(r.maps.len(), 1, "notes: {:?}", r.stats.notes);
+    assert_eq!(r.maps[0].poses.len(), 200, "every frame localised");
+    let ate = evaluate(&gt, &est_trajectory(&r), &EvalOptions::default()).expect("evaluate");
+    assert!(ate.ate_rmse < 0.015, "ATE {} m", ate.ate_rmse);
+}
+
+#[test]
 fn a_refined_camera_is_the_one_every_step_sees() {
     // The synthetic camera given 8 % too long a focal length, refined by
     // bundle adjustment: the map's reconstruction owns the camera, the

@@ -41,10 +41,10 @@ use crate::frame::{FramePose, FrameRecord};
 use crate::options::{GlobalBaTolerance, RollingShutter, SlamOptions};
 use crate::timing::{Stage, StageTimings};
 use colslam_camera::Camera;
-use colslam_geometry::{Quat, Vec2, Vec3};
+use colslam_geometry::{Quat, Rigid3, Sim3, Vec2, Vec3, umeyama};
 use colslam_sfm::SfmError;
 use colslam_sfm::bundle::adjust_global;
-use std::collections::HashMap;
+use std::collections::{HashMap, HashSet};
 
 /// A frame's angular velocity is taken from its neighbours only when they
 /// are at most this far apart in time (seconds).
@@ -403,7 +403,15 @@ impl Mapper {
         }
         self.global_refine(GlobalBaTolerance::RollingShutter, opts, timings)?;
         self.rec.update_point_errors()?;
-        self.localize_all(opts, timings)
+        let mut loc = self.localize_all(opts, timings)?;
+        let carried = carry_lost_frames(&first, &mut loc);
+        if carried > 0 {
+            tracing::info!(
+                "map {}: {carried} frames whose support the compensation removed keep their pose relative to their nearest keyframe",
+                self.index
+            );
+        }
+        Ok(loc)
     }
 
     /// Converges the map's bundle adjustment and localises every frame again:
@@ -472,10 +480,52 @@ impl Mapper {
     }
 }
 
+/// Gives the frames that `first` localised and `after` (the localisation of
+/// the compensated map) lost a pose: the one `first` gave them relative to
+/// their nearest keyframe in frame order, moved with that keyframe and scaled
+/// by the change of scale of the keyframe centres (the refinement normalises
+/// the map). A refinement of the finished map must not lose a frame it had
+/// localised: a record in a fast turn that leans on few keyframes can lose
+/// most of its map points to the compensated BA's filter (docs/history.md,
+/// issue 15) although its pose relative to its keyframe was sound. ORB-SLAM
+/// keeps every frame's pose relative to its reference keyframe for the same
+/// reason (its trajectory is written through the optimised keyframes).
+/// Refining the carried pose on what is left of the frame's support does
+/// not help: too few of those correspondences agree with it (docs/history.md).
+/// Returns how many frames were carried.
+pub(crate) fn carry_lost_frames(first: &Localization, after: &mut Localization) -> usize {
+    let keyframes = |loc: &Localization| -> HashMap<usize, Rigid3> {
+        loc.poses.iter().filter(|p| p.keyframe).map(|p| (p.frame.index, p.cam_from_world.inverse())).collect()
+    };
+    let (before, now) = (keyframes(first), keyframes(after));
+    let mut shared: Vec<usize> = before.keys().filter(|k| now.contains_key(k)).copied().collect();
+    shared.sort_unstable();
+    // Indexing below: `shared` holds only keys of both maps.
+    let centres = |m: &HashMap<usize, Rigid3>| -> Vec<Vec3> { shared.iter().map(|k| m[k].translation).collect() };
+    // Fewer than three keyframes or a degenerate layout: no scale change.
+    let scale = umeyama(&centres(&before), &centres(&now), true).map_or(1.0, |s| s.scale);
+    let lost: HashSet<usize> = after.failed.iter().map(|f| f.index).collect();
+    let mut carried = Vec::new();
+    for p in first.poses.iter().filter(|p| !p.keyframe && lost.contains(&p.frame.index)) {
+        let Some(&k) = shared.iter().min_by_key(|k| k.abs_diff(p.frame.index)) else { break };
+        let (kf0, kf1) = (&before[&k], &now[&k]);
+        // world_after_from_world_before at the keyframe, with the map's scale change.
+        let rotation = kf1.rotation * kf0.rotation.inverse();
+        let sim = Sim3 { scale, rotation, translation: kf1.translation - scale * (rotation * kf0.translation) };
+        let world_from_cam = sim.transform_world_from_cam(&p.cam_from_world.inverse());
+        tracing::debug!("frame {}: pose carried through the keyframe of frame {k}", p.frame.index);
+        carried.push(FramePose { cam_from_world: world_from_cam.inverse(), ..p.clone() });
+    }
+    let indices: HashSet<usize> = carried.iter().map(|p| p.frame.index).collect();
+    after.failed.retain(|f| !indices.contains(&f.index));
+    after.poses.extend(carried);
+    after.poses.sort_by_key(|p| p.frame.index);
+    indices.len()
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
-    use colslam_geometry::Rigid3;
 
     fn pose(index: usize, t: f64, w: &Vec3) -> FramePose {
         FramePose {
@@ -483,6 +533,49 @@ mod tests {
             cam_from_world: Rigid3::new(Quat::from_scaled_axis(w * t), Vec3::zeros()),
             keyframe: false,
         }
+    }
+
+    #[test]
+    fn a_frame_the_compensation_lost_moves_with_its_nearest_keyframe() {
+        // Keyframes at frames 0, 10 and 20; frame 12 localised first, lost
+        // after a refinement that moved the whole map by a similarity (the
+        // normalisation's scale included): it keeps its place in the map.
+        let at = |index: usize, keyframe: bool, angle: f64, c: Vec3| FramePose {
+            frame: crate::frame::FrameId { index, timestamp: index as f64, name: format!("{index}") },
+            cam_from_world: Rigid3::new(Quat::from_scaled_axis(Vec3::new(0.1, angle, 0.0)), c).inverse(),
+            keyframe,
+        };
+        let kf = [
+            (0, 0.0, Vec3::new(0.0, 0.0, 0.0)),
+            (10, 0.2, Vec3::new(1.0, 0.1, 0.0)),
+            (20, 0.4, Vec3::new(2.0, 0.0, 0.3)),
+        ];
+        let mut poses: Vec<FramePose> = kf.iter().map(|&(i, a, c)| at(i, true, a, c)).collect();
+        poses.push(at(12, false, 0.25, Vec3::new(1.2, 0.1, 0.05)));
+        let first = Localization { poses, ..Default::default() };
+        let sim = Sim3 {
+            scale: 2.5,
+            rotation: Quat::from_scaled_axis(Vec3::new(0.0, 0.3, -0.2)),
+            translation: Vec3::new(4.0, -1.0, 2.0),
+        };
+        let moved = |p: &FramePose| FramePose {
+            cam_from_world: sim.transform_world_from_cam(&p.cam_from_world.inverse()).inverse(),
+            ..p.clone()
+        };
+        let lost = first.poses[3].frame.clone();
+        let mut after = Localization {
+            poses: first.poses[..3].iter().map(moved).collect(),
+            failed: vec![lost.clone(), crate::frame::FrameId { index: 15, ..lost }],
+            ..Default::default()
+        };
+        assert_eq!(carry_lost_frames(&first, &mut after), 1);
+        assert_eq!(after.poses.iter().map(|p| p.frame.index).collect::<Vec<_>>(), [0, 10, 12, 20]);
+        // Frame 15 was never localised: still failed.
+        assert_eq!(after.failed.iter().map(|f| f.index).collect::<Vec<_>>(), [15]);
+        let (got, want) = (after.poses[2].cam_from_world, moved(&first.poses[3]).cam_from_world);
+        assert!((got.center() - want.center()).norm() < 1e-9, "{:?} {:?}", got.center(), want.center());
+        assert!(got.rotation.angle_to(&want.rotation) < 1e-9);
+        assert!(!after.poses[2].keyframe);
     }
 
     #[test]

@@ -15,6 +15,9 @@
 //!   which drift past the pose-proximity revisit test within a lap: the
 //!   sequence for loop closure by appearance (on by default; `--run-args
 //!   "--loop-closure false"` for the run without it);
+//! * `drive`: the synthetic generator's drive, straight ahead, one left
+//!   turn, straight ahead (not measured by default): forward motion with
+//!   exact intrinsics, issue 20's scale drift without a calibration's error;
 //! * `forward-back`: a real sequence (default `tum_fr1_rpy_sub`) played
 //!   forward and back (frames 0..n-1, n-2..0, 1.., ...) as a TUM folder of
 //!   symbolic links with strictly increasing timestamps and the matching
@@ -46,7 +49,7 @@ pub const SYNTHETIC_LENGTHS: [usize; 3] = [1000, 5000, 10000];
 /// Default lengths of the forward-back sequence, frames.
 pub const FORWARD_BACK_LENGTHS: [usize; 4] = [1000, 2000, 4000, 10000];
 /// The sequence kinds `--sequences` accepts.
-pub const KINDS: [&str; 4] = ["explore", "loop", "forward-back", "loop-drift"];
+pub const KINDS: [&str; 5] = ["explore", "loop", "forward-back", "loop-drift", "drive"];
 /// The sequences measured when `--sequences` is not given.
 pub const DEFAULT_KINDS: [&str; 3] = ["explore", "loop", "forward-back"];
 /// Image size of `loop-drift`: the looping path at this size drifts past
@@ -59,6 +62,12 @@ pub const FRAMES_PER_LAP: usize = 1000;
 /// Camera advance per frame of the exploring line, metres (the default
 /// arc's speed).
 pub const EXPLORE_STEP_M: f64 = 0.01;
+/// Camera advance per frame of the drive, metres (6 m/s at 30 fps).
+pub const DRIVE_STEP_M: f64 = 0.2;
+/// Radius of the drive's turn, metres.
+const DRIVE_TURN_RADIUS_M: f64 = 6.0;
+/// Height of the drive's room (the buildings' walls), metres.
+const DRIVE_ROOM_HEIGHT_M: f64 = 6.0;
 /// Default image size of the synthetic sequences.
 pub const DEFAULT_SYNTHETIC_SIZE: (usize, usize) = (320, 240);
 /// Clutter boxes of the exploring room (the generator's maximum): they
@@ -77,7 +86,8 @@ pub struct Args {
     /// Which sequences (comma separated): explore (synthetic, new space all
     /// along), loop (synthetic laps of a room), forward-back (a real
     /// sequence played forward and back), loop-drift (the laps at 160x120,
-    /// which drift past the revisit test: the sequence for loop closure).
+    /// which drift past the revisit test: the sequence for loop closure),
+    /// drive (a synthetic forward drive with one left turn: issue 20).
     #[arg(long, value_delimiter = ',', default_values_t = DEFAULT_KINDS.map(String::from))]
     pub sequences: Vec<String>,
     /// Lengths in frames (comma separated) for every selected sequence.
@@ -209,6 +219,23 @@ pub fn synthetic_options(kind: &str, frames: usize, size: (usize, usize)) -> Res
                 room_size: [(length + margin + 0.5).max(base.room_size[0]), base.room_size[1], base.room_size[2]],
                 clutter_boxes: EXPLORE_CLUTTER,
                 ..base
+            }
+        }
+        "drive" => {
+            let length = frames as f64 * DRIVE_STEP_M;
+            let drive =
+                SynthOptions { path: PathShape::Drive, path_length: length, orbit_radius: DRIVE_TURN_RADIUS_M, ..base };
+            let straight = colslam_synth::options::drive_layout(&drive).straight.max(0.0);
+            // Room for one straight, the turn, the lane's inset and the end margin, with 2 m to spare.
+            let side = straight
+                + DRIVE_TURN_RADIUS_M
+                + colslam_synth::options::DRIVE_INSET
+                + colslam_synth::options::LINE_END_MARGIN
+                + 2.0;
+            SynthOptions {
+                room_size: [side.max(base.room_size[0]), side.max(base.room_size[1]), DRIVE_ROOM_HEIGHT_M],
+                clutter_boxes: EXPLORE_CLUTTER,
+                ..drive
             }
         }
         "loop" => SynthOptions {

@@ -83,6 +83,13 @@ pub enum PathShape {
     /// across the room at the +y wall: every stretch sees new wall (long
     /// exploring sequences in a long room).
     Line,
+    /// A drive along two sides of a large room, looking where it goes:
+    /// straight along +x beside the -y wall, a quarter turn to the left of
+    /// radius `orbit_radius`, straight along +y beside the +x wall; the two
+    /// straights share `path_length` minus the turn. Forward motion with
+    /// one turn, the geometry of a car's camera (issue 20's scale test,
+    /// with exact intrinsics where real drives have a calibration).
+    Drive,
 }
 
 /// Options of the synthetic sequence. Every field has a documented default
@@ -375,8 +382,61 @@ impl SynthOptions {
                     2.0 * LINE_END_MARGIN
                 ),
             )),
+            PathShape::Drive => self.validate_drive(),
             _ => Ok(()),
         }
+    }
+
+    /// A drive's straights must be of non-negative length and keep
+    /// [`LINE_END_MARGIN`] from the walls they drive towards.
+    fn validate_drive(&self) -> Result<(), SynthError> {
+        let d = drive_layout(self);
+        let (hx, hy) = (self.room_size[0] / 2.0, self.room_size[1] / 2.0);
+        if d.straight < 0.0 {
+            return Err(invalid("path_length", self.path_length, "a drive must be at least its quarter turn long"));
+        }
+        if d.corner_x - d.straight < -hx + LINE_END_MARGIN || d.corner_y + d.straight > hy - LINE_END_MARGIN {
+            return Err(invalid(
+                "room_size",
+                format!("{:?}", self.room_size),
+                &format!("too small for a drive of {} m with a turn of radius {}", self.path_length, self.orbit_radius),
+            ));
+        }
+        Ok(())
+    }
+}
+
+/// Distance of a [`PathShape::Drive`] from the walls beside it, metres
+/// (the lane's distance from the buildings).
+pub const DRIVE_INSET: f64 = 3.0;
+
+/// Where a [`PathShape::Drive`] runs (room coordinates).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct DriveLayout {
+    /// Length of each straight, metres.
+    pub straight: f64,
+    /// Radius of the turn.
+    pub radius: f64,
+    /// x of the first straight's end (the turn's start).
+    pub corner_x: f64,
+    /// y of the first straight.
+    pub first_y: f64,
+    /// y of the second straight's start (the turn's end).
+    pub corner_y: f64,
+}
+
+/// The drive of `opts` (its straights may be negative when the options are
+/// invalid; [`SynthOptions::validate`] refuses those).
+pub fn drive_layout(opts: &SynthOptions) -> DriveLayout {
+    let radius = opts.orbit_radius;
+    let (hx, hy) = (opts.room_size[0] / 2.0, opts.room_size[1] / 2.0);
+    let turn = std::f64::consts::FRAC_PI_2 * radius;
+    DriveLayout {
+        straight: (opts.path_length - turn) / 2.0,
+        radius,
+        corner_x: hx - DRIVE_INSET - radius,
+        first_y: -hy + DRIVE_INSET,
+        corner_y: -hy + DRIVE_INSET + radius,
     }
 }
 

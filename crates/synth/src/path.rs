@@ -11,7 +11,7 @@
 use colslam_geometry::{Mat3, Quat, Rigid3, SplitMix64, Vec3};
 use std::f64::consts::{PI, TAU};
 
-use crate::options::{PathShape, SynthOptions};
+use crate::options::{DriveLayout, PathShape, SynthOptions, drive_layout};
 
 /// Sine components per jitter axis.
 const JITTER_COMPONENTS: usize = 3;
@@ -32,6 +32,12 @@ const TARGET_HEIGHT: f64 = 0.85;
 const LINE_OFFSET: f64 = 0.25;
 /// How far across the room a [`PathShape::Line`] camera looks, metres.
 const LINE_LOOK_DISTANCE: f64 = 2.5;
+
+/// How far ahead a [`PathShape::Drive`] camera looks, metres.
+const DRIVE_LOOK_DISTANCE: f64 = 10.0;
+/// How far below the camera's height its looked-at point lies, metres
+/// (a car's camera pitched slightly down towards the road).
+const DRIVE_LOOK_DOWN: f64 = 0.5;
 
 /// One jittered scalar: a sum of sines.
 #[derive(Debug, Clone)]
@@ -69,6 +75,8 @@ pub struct Trajectory {
     length: f64,
     /// y of the line path.
     line_y: f64,
+    /// Where a drive runs.
+    drive: DriveLayout,
     duration: f64,
     radius: f64,
     height: f64,
@@ -97,6 +105,7 @@ impl Trajectory {
             shape: opts.path,
             length: opts.path_length,
             line_y: -LINE_OFFSET * opts.room_size[1],
+            drive: drive_layout(opts),
             duration,
             radius: opts.orbit_radius,
             height: opts.camera_height,
@@ -117,12 +126,17 @@ impl Trajectory {
         self.duration
     }
 
+    /// Progress along the path at normalised time `s`, with a varying speed.
+    fn progress(&self, s: f64) -> f64 {
+        s + PROGRESS_WOBBLE * ((TAU * s + self.phase_progress).sin() - self.phase_progress.sin())
+    }
+
     /// Camera centre at time `t` (seconds) without the jitter.
     fn base_center(&self, t: f64) -> Vec3 {
         let s = t / self.duration;
         // Progress with a varying speed; d/ds = 1 + 2 pi w cos(.) > 0 since
         // 2 pi w < 1, so the camera never stops (no pure rotation).
-        let p = s + PROGRESS_WOBBLE * ((TAU * s + self.phase_progress).sin() - self.phase_progress.sin());
+        let p = self.progress(s);
         let wobble = RADIAL_WOBBLE * (PI * s + self.phase_radius).sin();
         let h = self.height + HEIGHT_WOBBLE * (TAU * 0.7 * s + self.phase_height).sin();
         match self.shape {
@@ -132,6 +146,28 @@ impl Trajectory {
                 Vec3::new(r * theta.cos(), r * theta.sin(), h)
             }
             PathShape::Line => Vec3::new(self.length * (p - 0.5), self.line_y + wobble, h),
+            PathShape::Drive => {
+                let (xy, dir) = self.drive_at(p);
+                // The lateral wobble: left of the direction of travel.
+                Vec3::new(xy[0] - wobble * dir[1], xy[1] + wobble * dir[0], h)
+            }
+        }
+    }
+
+    /// A drive's point and unit direction of travel at progress `p` (0 at
+    /// the first straight's start, 1 at the second's end).
+    fn drive_at(&self, p: f64) -> ([f64; 2], [f64; 2]) {
+        let d = &self.drive;
+        let along = p * self.length;
+        let turn = std::f64::consts::FRAC_PI_2 * d.radius;
+        if along < d.straight {
+            ([d.corner_x - d.straight + along, d.first_y], [1.0, 0.0])
+        } else if along < d.straight + turn {
+            // Counter-clockwise about the turn's centre (corner_x, corner_y).
+            let phi = (along - d.straight) / d.radius;
+            ([d.corner_x + d.radius * phi.sin(), d.corner_y - d.radius * phi.cos()], [phi.cos(), phi.sin()])
+        } else {
+            ([d.corner_x + d.radius, d.corner_y + along - d.straight - turn], [0.0, 1.0])
         }
     }
 
@@ -149,6 +185,15 @@ impl Trajectory {
     pub fn target(&self, t: f64) -> Vec3 {
         let s = t / self.duration;
         let a = self.phase_target + self.target_turn * s;
+        if self.shape == PathShape::Drive {
+            let c = self.base_center(t);
+            let (_, dir) = self.drive_at(self.progress(s));
+            return Vec3::new(
+                c.x + DRIVE_LOOK_DISTANCE * dir[0],
+                c.y + DRIVE_LOOK_DISTANCE * dir[1],
+                c.z - DRIVE_LOOK_DOWN,
+            );
+        }
         if self.shape == PathShape::Line {
             // Across the room, wandering along it and in height.
             let c = self.base_center(t);
@@ -172,7 +217,8 @@ impl Trajectory {
         let up = Vec3::new(0.0, 0.0, 1.0);
         // The target is always well below the horizon-to-zenith range (it is
         // on the table, the camera above it at >= 1 m horizontal distance, or
-        // 2.5 m across the room from a line path), so
+        // 2.5 m across the room from a line path, or 10 m ahead of a drive
+        // and 0.5 m below its height), so
         // z is never parallel to up.
         let x = z.cross(&up).normalize();
         let y = z.cross(&x);
@@ -207,6 +253,55 @@ mod tests {
             // Camera y (down) points downwards in the world.
             assert!(r.column(1).z < 0.0);
         }
+    }
+
+    /// A valid drive: 60 m with a turn of radius 6 in a 40 x 40 m room.
+    pub(crate) fn drive_options() -> SynthOptions {
+        SynthOptions {
+            path: PathShape::Drive,
+            path_length: 60.0,
+            orbit_radius: 6.0,
+            room_size: [40.0, 40.0, 6.0],
+            frames: 300,
+            ..Default::default()
+        }
+    }
+
+    #[test]
+    fn a_drive_goes_straight_turns_left_once_and_looks_where_it_goes() {
+        let opts = drive_options();
+        opts.validate().unwrap();
+        let tr = Trajectory::new(&opts);
+        let n = 600;
+        let heading = |t: f64| {
+            let z = tr.world_from_cam(t).rotation_matrix().column(2).into_owned();
+            z.y.atan2(z.x)
+        };
+        let (first, last) = (heading(0.0), heading(tr.duration()));
+        // Along +x first, along +y at the end (within the rotation jitter).
+        assert!(first.abs() < 0.05, "{first}");
+        assert!((last - std::f64::consts::FRAC_PI_2).abs() < 0.05, "{last}");
+        let mut length = 0.0;
+        for k in 0..n {
+            let (t0, t1) = (tr.duration() * k as f64 / n as f64, tr.duration() * (k + 1) as f64 / n as f64);
+            let (c0, c1) = (tr.base_center(t0), tr.base_center(t1));
+            length += ((c1 - c0).xy()).norm();
+            // Moving forward: the optical axis points along the motion.
+            let z = tr.world_from_cam(t0).rotation_matrix().column(2).into_owned();
+            assert!(z.xy().normalize().dot(&(c1 - c0).xy().normalize()) > 0.98, "step {k}");
+            // The heading never turns right nor by more than the quarter turn.
+            assert!(heading(t1) > heading(t0) - 0.02 && heading(t1) < std::f64::consts::FRAC_PI_2 + 0.05);
+        }
+        // The path length, within the lateral wobble's share.
+        assert!((length - opts.path_length).abs() < 0.02 * opts.path_length, "{length}");
+    }
+
+    #[test]
+    fn a_drive_too_long_for_its_room_is_refused() {
+        let opts = SynthOptions { path_length: 90.0, ..drive_options() };
+        assert!(opts.validate().is_err());
+        let opts = SynthOptions { path_length: 5.0, ..drive_options() };
+        assert!(opts.validate().is_err());
     }
 
     #[test]

@@ -125,6 +125,11 @@ fn map_points_matched(map: &Mapper, k: usize, matches: &[Match]) -> usize {
     })
 }
 
+/// The records' memory budget in bytes (`--record-memory` MiB).
+fn record_budget(opts: &SlamOptions) -> usize {
+    opts.refine.record_memory.saturating_mul(1 << 20)
+}
+
 /// A keyframe candidate is refused for too little rotation-compensated flow
 /// only while it matches at least this many times the force-keyframe count.
 const PARALLAX_SAFE_MATCHES: usize = 2;
@@ -264,7 +269,7 @@ pub struct Slam {
     stats: RunStats,
     /// Where the maps' records spill beyond their memory budget
     /// (`--record-memory`; [`crate::records`]).
-    spill: Option<SpillConfig>,
+    spill: SpillConfig,
     /// Set by an interruption (Ctrl-C): [`Slam::finish`] stops between its
     /// stages with [`SlamError::Cancelled`].
     interrupt: Option<Arc<std::sync::atomic::AtomicBool>>,
@@ -286,6 +291,7 @@ impl Slam {
     ) -> Result<Self, SlamError> {
         opts.validate()?;
         let frontend = Arc::new(Frontend::new(&opts.frontend, camera_opencv)?);
+        let spill = SpillConfig::temp(record_budget(&opts));
         Ok(Self {
             emitter: Emitter::new(events, opts.mapper.local_ba_images),
             camera: frontend.camera().clone(),
@@ -298,21 +304,16 @@ impl Slam {
             frames: Vec::new(),
             timings: StageTimings::default(),
             stats: RunStats::default(),
-            spill: None,
+            spill,
             interrupt: None,
-        }
-        .with_spill(None))
+        })
     }
 
     /// Records spill to a file named `prefix` + `PID-N` in `dir` (the
-    /// driver: beside the output folder), or to the system's temporary
-    /// folder without `dir`, once they exceed `--record-memory`.
-    pub fn with_spill(mut self, dir: Option<(PathBuf, String)>) -> Self {
-        let budget = self.opts.refine.record_memory.saturating_mul(1 << 20);
-        self.spill = Some(match dir {
-            Some((dir, prefix)) => SpillConfig { dir, prefix, budget },
-            None => SpillConfig::temp(budget),
-        });
+    /// driver: beside the output folder) instead of the system's temporary
+    /// folder, once they exceed `--record-memory`.
+    pub fn with_spill(mut self, (dir, prefix): (PathBuf, String)) -> Self {
+        self.spill = SpillConfig { dir, prefix, budget: record_budget(&self.opts) };
         self
     }
 
@@ -446,7 +447,7 @@ impl Slam {
         self.timings.add(Stage::Initialization, started.elapsed());
         match init {
             Some((mut map, i, j)) => {
-                map.set_record_spill(self.spill.clone());
+                map.set_record_spill(Some(self.spill.clone()));
                 self.start_map(map, window, i, j)
             }
             None => {

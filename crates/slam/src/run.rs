@@ -507,7 +507,7 @@ pub fn run(config: &RunConfig, events: EventSink, mut hooks: RunHooks<'_>) -> Re
     }
     // Records beyond the memory budget spill beside the output: the file
     // system the user chose for it, cleaned up with its staging folder.
-    let mut slam = Slam::new(slam_opts.clone(), &resolved.camera, events)?.with_spill(Some(output.scratch_prefix()));
+    let mut slam = Slam::new(slam_opts.clone(), &resolved.camera, events)?.with_spill(output.scratch_prefix());
     if let Some(flag) = &hooks.interrupt {
         slam.set_interrupt(flag.clone());
     }

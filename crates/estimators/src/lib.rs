@@ -42,8 +42,8 @@ pub use essential_5pt::{
 };
 pub use fundamental::{estimate_fundamental_7pt, estimate_fundamental_8pt};
 pub use homography::{
-    HomographyDecomposition, decompose_homography, estimate_homography_dlt, homography_from_pose, pose_from_homography,
-    transfer_error_sq,
+    HomographyDecomposition, decompose_homography, estimate_homography_dlt, homography_from_pose, homography_poses,
+    pose_from_homography, transfer_error_sq,
 };
 pub use p3p::{estimate_p3p, estimate_p3p_grunert};
 // Robust pipelines.

@@ -7,7 +7,7 @@ use crate::options::{GlobalBaTolerance, INIT_TWO_VIEW_TRIALS, SlamOptions, VERIF
 use crate::timing::{Stage, StageTimings};
 use colslam_camera::Camera;
 use colslam_estimators::{
-    RansacOptions, TwoViewConfig, TwoViewGeometry, TwoViewGeometryOptions, estimate_two_view_geometry,
+    RansacOptions, TwoViewConfig, TwoViewGeometry, TwoViewGeometryOptions, estimate_two_view_geometry, homography_poses,
 };
 use colslam_features::Match;
 use colslam_geometry::{Rigid3, Vec2};
@@ -42,6 +42,41 @@ pub fn two_view(
         ..TwoViewGeometryOptions::default()
     };
     estimate_two_view_geometry(&x1, &x2, &opts).ok()
+}
+
+/// A rival decomposition of a planar pair's homography is ambiguous when it
+/// keeps at least this share of the best one's points in front of both
+/// cameras (ORB-SLAM's `ReconstructH` asks the second best for less than
+/// 0.75 of the best).
+const PLANAR_AMBIGUITY_RATIO: f64 = 0.75;
+
+/// Decompositions whose translations differ by less than this (degrees) are
+/// the same solution, not rivals.
+const PLANAR_RIVAL_MIN_ANGLE_DEG: f64 = 10.0;
+
+/// Whether a planar pair's pose is ambiguous: two decompositions of its
+/// homography with different translations both keep most inliers in front
+/// of both cameras. Moving towards a plane (forward motion over a floor or
+/// along a wall) makes the swapped solution, translation along the plane's
+/// normal, as plausible as the true one, with a much larger, wrong
+/// triangulation angle; a map started from it has the wrong scale and
+/// direction for its first frames.
+fn planar_pose_is_ambiguous(tvg: &TwoViewGeometry, a: &FrameData, b: &FrameData, matches: &[Match]) -> bool {
+    let Some(h) = tvg.homography else { return false };
+    let inliers = matches.iter().zip(&tvg.inlier_mask).filter(|(_, k)| **k).map(|(m, _)| m);
+    let (x1, x2): (Vec<Vec2>, Vec<Vec2>) = inliers
+        .filter_map(|m| Some((*a.normalized.get(m.query as usize)?, *b.normalized.get(m.train as usize)?)))
+        .unzip();
+    let Ok(mut poses) = homography_poses(&h, &x1, &x2) else { return false };
+    poses.sort_by(|p, q| q.num_valid.cmp(&p.num_valid));
+    let Some((best, rest)) = poses.split_first() else { return false };
+    let t0 = best.cam2_from_cam1.translation;
+    rest.iter().any(|p| {
+        let t = p.cam2_from_cam1.translation;
+        let cos = (t.dot(&t0) / (t.norm() * t0.norm())).clamp(-1.0, 1.0);
+        let distinct = !cos.is_finite() || cos.acos().to_degrees() >= PLANAR_RIVAL_MIN_ANGLE_DEG;
+        distinct && p.num_valid as f64 >= PLANAR_AMBIGUITY_RATIO * best.num_valid as f64
+    })
 }
 
 /// Matches of the pair `(i, j)` in either order.
@@ -105,6 +140,10 @@ fn verified_pair(
         .is_some_and(|a| a >= opts.init.init_min_tri_angle && a <= opts.init.init_max_tri_angle);
     let rel = tvg.cam2_from_cam1?;
     if !motion_ok || !angle_ok || tvg.num_inliers < opts.init.init_min_inliers {
+        return None;
+    }
+    if tvg.config == TwoViewConfig::Planar && planar_pose_is_ambiguous(&tvg, a, b, matches) {
+        tracing::debug!("init candidate {} / {}: planar pose ambiguous, skipped", a.index(), b.index());
         return None;
     }
     let inliers = matches.iter().zip(&tvg.inlier_mask).filter(|(_, k)| **k).map(|(m, _)| *m).collect();
@@ -184,6 +223,61 @@ impl Mapper {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::frame::tests::frame_data;
+    use colslam_geometry::{SplitMix64, Vec3};
+
+    /// Two frames seeing `points` (camera-1 coordinates) from camera 1 and
+    /// from `cam2_from_cam1`, with 0.3 px noise at a focal length of 300,
+    /// and their identity matches.
+    fn pair(points: &[Vec3], cam2_from_cam1: &Rigid3, seed: u64) -> (FrameData, FrameData, Vec<Match>) {
+        let mut rng = SplitMix64::new(seed);
+        let mut noisy =
+            |p: Vec3| Vec2::new(p.x / p.z, p.y / p.z) + Vec2::new(rng.normal(), rng.normal()) * (0.3 / 300.0);
+        let x1 = points.iter().map(|p| noisy(*p)).collect();
+        let x2 = points.iter().map(|p| noisy(cam2_from_cam1.transform_point(p))).collect();
+        (frame_data(0, x1), frame_data(3, x2), matches(points.len()))
+    }
+
+    /// Points on a plane in front of camera 1: `height` below it (a floor,
+    /// y down) when `wall` is false, else a wall `height` ahead.
+    fn plane(n: usize, height: f64, wall: bool, seed: u64) -> Vec<Vec3> {
+        let mut rng = SplitMix64::new(seed);
+        (0..n)
+            .map(|_| {
+                let (a, b) = (rng.uniform(-4.0, 4.0), rng.uniform(4.0, 14.0));
+                if wall { Vec3::new(a, b - 9.0, height) } else { Vec3::new(a, height, b) }
+            })
+            .collect()
+    }
+
+    #[test]
+    fn a_pair_moving_towards_a_floor_is_ambiguous_and_not_an_initial_pair() {
+        // Forward motion over a floor (a drive): the homography's swapped
+        // decomposition (moving down onto the floor) explains the views as
+        // well as the true one, and its larger angle would pass the
+        // initial pair's tests.
+        let forward = Rigid3::from_wxyz([1.0, 0.0, 0.0, 0.0], [0.0, 0.0, -0.6]);
+        let (a, b, m) = pair(&plane(150, 1.5, false, 1), &forward, 2);
+        let tvg = two_view(&a, &b, &m, 300.0, 7, INIT_TWO_VIEW_TRIALS).unwrap();
+        assert_eq!(tvg.config, TwoViewConfig::Planar);
+        assert!(planar_pose_is_ambiguous(&tvg, &a, &b, &m));
+        let mut opts = SlamOptions::default();
+        opts.init.init_min_tri_angle = 0.5;
+        assert!(verified_pair(&a, &b, &m, 300.0, &opts).is_none());
+    }
+
+    #[test]
+    fn a_pair_moving_along_a_wall_is_not_ambiguous() {
+        // Sideways motion in front of a wall: the swapped decomposition puts
+        // most points behind a camera, so the pose is clear and the pair
+        // still starts a map.
+        let sideways = Rigid3::from_wxyz([1.0, 0.0, 0.0, 0.0], [-0.8, 0.0, 0.0]);
+        let (a, b, m) = pair(&plane(150, 6.0, true, 3), &sideways, 4);
+        let tvg = two_view(&a, &b, &m, 300.0, 7, INIT_TWO_VIEW_TRIALS).unwrap();
+        assert_eq!(tvg.config, TwoViewConfig::Planar);
+        assert!(!planar_pose_is_ambiguous(&tvg, &a, &b, &m));
+        assert!(verified_pair(&a, &b, &m, 300.0, &SlamOptions::default()).is_some());
+    }
 
     fn matches(n: usize) -> Vec<Match> {
         (0..n as u32).map(|k| Match { query: k, train: k, distance: 0.0 }).collect()

@@ -161,6 +161,11 @@ pub struct InitOptions {
     /// Minimum 3D points after initialisation (ORB-SLAM asks for 50, COLMAP for one).
     #[cfg_attr(feature = "cli", arg(long, value_name = "N", default_value_t = InitOptions::default().init_min_points))]
     pub init_min_points: usize,
+    /// Skip a planar initial pair whose homography has two decompositions keeping most points in front of both cameras.
+    ///
+    /// Forward motion over a floor or along a wall makes the swapped decomposition (translation along the plane's normal) as plausible as the true one; started from it, the synthetic drive at 320x240 placed its first frames 4x too far apart. Off by default: on the KITTI clip the maps that such pairs start are later merged into one, and skipping them loses 25 frames and a map (docs/benchmarks.md).
+    #[cfg_attr(feature = "cli", arg(long, value_name = "BOOL", default_value_t = InitOptions::default().init_skip_ambiguous_planar, action = clap::ArgAction::Set))]
+    pub init_skip_ambiguous_planar: bool,
 }
 
 impl Default for InitOptions {
@@ -171,6 +176,7 @@ impl Default for InitOptions {
             init_max_tri_angle: 180.0,
             init_min_inliers: 100,
             init_min_points: 50,
+            init_skip_ambiguous_planar: false,
         }
     }
 }

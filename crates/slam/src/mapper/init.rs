@@ -68,7 +68,7 @@ fn planar_pose_is_ambiguous(tvg: &TwoViewGeometry, a: &FrameData, b: &FrameData,
         .filter_map(|m| Some((*a.normalized.get(m.query as usize)?, *b.normalized.get(m.train as usize)?)))
         .unzip();
     let Ok(mut poses) = homography_poses(&h, &x1, &x2) else { return false };
-    poses.sort_by(|p, q| q.num_valid.cmp(&p.num_valid));
+    poses.sort_by_key(|p| std::cmp::Reverse(p.num_valid));
     let Some((best, rest)) = poses.split_first() else { return false };
     let t0 = best.cam2_from_cam1.translation;
     rest.iter().any(|p| {
@@ -111,8 +111,9 @@ pub(crate) fn second_candidates(n: usize, first: usize, pair_matches: &PairMatch
 
 /// The verified relative pose and inlier matches of a candidate pair, when
 /// its geometry allows an initialisation: enough inliers, motion that is
-/// neither planar-only nor pure rotation, and a median triangulation angle
-/// of at least `init_min_tri_angle`.
+/// neither planar-only nor pure rotation, a median triangulation angle
+/// of at least `init_min_tri_angle` and, with `init_skip_ambiguous_planar`,
+/// not a planar pose its homography cannot tell from another.
 fn verified_pair(
     a: &FrameData,
     b: &FrameData,
@@ -142,7 +143,10 @@ fn verified_pair(
     if !motion_ok || !angle_ok || tvg.num_inliers < opts.init.init_min_inliers {
         return None;
     }
-    if tvg.config == TwoViewConfig::Planar && planar_pose_is_ambiguous(&tvg, a, b, matches) {
+    if opts.init.init_skip_ambiguous_planar
+        && tvg.config == TwoViewConfig::Planar
+        && planar_pose_is_ambiguous(&tvg, a, b, matches)
+    {
         tracing::debug!("init candidate {} / {}: planar pose ambiguous, skipped", a.index(), b.index());
         return None;
     }
@@ -263,6 +267,8 @@ mod tests {
         assert!(planar_pose_is_ambiguous(&tvg, &a, &b, &m));
         let mut opts = SlamOptions::default();
         opts.init.init_min_tri_angle = 0.5;
+        assert!(verified_pair(&a, &b, &m, 300.0, &opts).is_some(), "off by default");
+        opts.init.init_skip_ambiguous_planar = true;
         assert!(verified_pair(&a, &b, &m, 300.0, &opts).is_none());
     }
 
@@ -276,7 +282,9 @@ mod tests {
         let tvg = two_view(&a, &b, &m, 300.0, 7, INIT_TWO_VIEW_TRIALS).unwrap();
         assert_eq!(tvg.config, TwoViewConfig::Planar);
         assert!(!planar_pose_is_ambiguous(&tvg, &a, &b, &m));
-        assert!(verified_pair(&a, &b, &m, 300.0, &SlamOptions::default()).is_some());
+        let mut opts = SlamOptions::default();
+        opts.init.init_skip_ambiguous_planar = true;
+        assert!(verified_pair(&a, &b, &m, 300.0, &opts).is_some());
     }
 
     fn matches(n: usize) -> Vec<Match> {

@@ -60,7 +60,9 @@ pub use triangulation::{
     TriangulatedPoint, TriangulationOptions, TriangulationRejection, triangulate_multiview, triangulate_two_view,
     triangulation_angle,
 };
-pub use two_view_geometry::{TwoViewConfig, TwoViewGeometry, TwoViewGeometryOptions, estimate_two_view_geometry};
+pub use two_view_geometry::{
+    TwoViewConfig, TwoViewGeometry, TwoViewGeometryOptions, estimate_two_view_geometry, median_tri_angle_deg,
+};
 // Errors and re-exports from colslam-geometry (Umeyama similarity included).
 pub use colslam_geometry::{Rigid3, Sim3, UmeyamaError, umeyama};
 pub use error::{EstimatorError, MAX_COORD};

@@ -8,10 +8,9 @@ use crate::timing::{Stage, StageTimings};
 use colslam_camera::Camera;
 use colslam_estimators::{
     RansacOptions, RecoveredPose, TwoViewConfig, TwoViewGeometry, TwoViewGeometryOptions, essential_from_pose,
-    estimate_two_view_geometry, homography_poses, sampson_error_sq,
+    estimate_two_view_geometry, homography_poses, median_tri_angle_deg, sampson_error_sq,
 };
 use colslam_features::Match;
-use colslam_geometry::stats::median_in_place;
 use colslam_geometry::{Rigid3, Vec2};
 use colslam_sfm::SfmError;
 use colslam_sfm::triangulator::triangulate_image;
@@ -117,28 +116,11 @@ fn planar_pose(tvg: &TwoViewGeometry, a: &FrameData, b: &FrameData, matches: &[M
     match sr.cmp(&sb) {
         std::cmp::Ordering::Less => PlanarPose::Clear,
         std::cmp::Ordering::Equal => PlanarPose::Ambiguous,
-        std::cmp::Ordering::Greater => match median_angle_deg(rival) {
+        std::cmp::Ordering::Greater => match median_tri_angle_deg(rival) {
             Some(angle) => PlanarPose::Rival(rival.cam2_from_cam1, angle),
             None => PlanarPose::Ambiguous,
         },
     }
-}
-
-/// Median triangulation angle (degrees) of a recovered pose's valid points.
-fn median_angle_deg(p: &RecoveredPose) -> Option<f64> {
-    let c2 = p.cam2_from_cam1.inverse().translation;
-    let mut angles: Vec<f64> = p
-        .points3d
-        .iter()
-        .zip(&p.valid)
-        .filter(|(_, v)| **v)
-        .map(|(x, _)| {
-            let (r1, r2) = (x, x - c2);
-            (r1.dot(&r2) / (r1.norm() * r2.norm())).clamp(-1.0, 1.0).acos().to_degrees()
-        })
-        .filter(|a| a.is_finite())
-        .collect();
-    median_in_place(&mut angles)
 }
 
 /// Matches of the pair `(i, j)` in either order.

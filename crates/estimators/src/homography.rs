@@ -205,12 +205,38 @@ fn project_to_rotation(m: &Mat3) -> Mat3 {
 /// norm, or zero for a pure rotation (then `valid` marks every point whose
 /// rotated ray is in front of camera 2).
 pub fn pose_from_homography(h: &Mat3, x1: &[Vec2], x2: &[Vec2]) -> Result<RecoveredPose, EstimatorError> {
+    let cands = homography_poses(h, x1, x2)?;
+    let mut best: Option<RecoveredPose> = None;
+    for c in cands {
+        if best.as_ref().is_none_or(|b| c.num_valid > b.num_valid) {
+            best = Some(c);
+        }
+    }
+    match best {
+        Some(b) if b.num_valid > 0 => Ok(b),
+        _ => Err(EstimatorError::Degenerate {
+            problem: "pose from homography",
+            reason: "no decomposition puts points in front of both cameras",
+        }),
+    }
+}
+
+/// Every decomposition of `H` whose plane faces camera 1, with its
+/// cheirality support (the sign of `H` fixed as in [`pose_from_homography`]),
+/// in decomposition order.
+///
+/// A plane seen from two views has two physically valid decompositions
+/// (the translation and the plane normal trade places); when both keep most
+/// points in front of both cameras the pose is ambiguous, and the caller
+/// must not trust the best one (ORB-SLAM's `ReconstructH` asks for a clear
+/// winner, Mur-Artal et al. 2015, IV-C).
+pub fn homography_poses(h: &Mat3, x1: &[Vec2], x2: &[Vec2]) -> Result<Vec<RecoveredPose>, EstimatorError> {
     check_pairs("pose from homography", x1, x2, 1)?;
     let positive =
         x1.iter().zip(x2).filter(|(p, q)| Vec3::new(q.x, q.y, 1.0).dot(&(h * Vec3::new(p.x, p.y, 1.0))) > 0.0).count();
     let sign = if 2 * positive >= x1.len() { 1.0 } else { -1.0 };
     let cands = decompose_signed(&(h * sign))?;
-    let mut best: Option<RecoveredPose> = None;
+    let mut out = Vec::with_capacity(cands.len());
     for c in &cands {
         let t_norm = c.translation.norm();
         let (valid, points3d, num_valid) = if t_norm == 0.0 {
@@ -225,23 +251,15 @@ pub fn pose_from_homography(h: &Mat3, x1: &[Vec2], x2: &[Vec2]) -> Result<Recove
             }
             cheirality(&c.rotation, &(c.translation / t_norm), x1, x2)
         };
-        if best.as_ref().is_none_or(|b| num_valid > b.num_valid) {
-            let t = if t_norm > 0.0 { c.translation / t_norm } else { Vec3::zeros() };
-            best = Some(RecoveredPose {
-                cam2_from_cam1: Rigid3::from_rotation_matrix(&c.rotation, t),
-                valid,
-                num_valid,
-                points3d,
-            });
-        }
+        let t = if t_norm > 0.0 { c.translation / t_norm } else { Vec3::zeros() };
+        out.push(RecoveredPose {
+            cam2_from_cam1: Rigid3::from_rotation_matrix(&c.rotation, t),
+            valid,
+            num_valid,
+            points3d,
+        });
     }
-    match best {
-        Some(b) if b.num_valid > 0 => Ok(b),
-        _ => Err(EstimatorError::Degenerate {
-            problem: "pose from homography",
-            reason: "no decomposition puts points in front of both cameras",
-        }),
-    }
+    Ok(out)
 }
 
 #[cfg(test)]

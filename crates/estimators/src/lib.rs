@@ -42,8 +42,8 @@ pub use essential_5pt::{
 };
 pub use fundamental::{estimate_fundamental_7pt, estimate_fundamental_8pt};
 pub use homography::{
-    HomographyDecomposition, decompose_homography, estimate_homography_dlt, homography_from_pose, pose_from_homography,
-    transfer_error_sq,
+    HomographyDecomposition, decompose_homography, estimate_homography_dlt, homography_from_pose, homography_poses,
+    pose_from_homography, transfer_error_sq,
 };
 pub use p3p::{estimate_p3p, estimate_p3p_grunert};
 // Robust pipelines.
@@ -60,7 +60,9 @@ pub use triangulation::{
     TriangulatedPoint, TriangulationOptions, TriangulationRejection, triangulate_multiview, triangulate_two_view,
     triangulation_angle,
 };
-pub use two_view_geometry::{TwoViewConfig, TwoViewGeometry, TwoViewGeometryOptions, estimate_two_view_geometry};
+pub use two_view_geometry::{
+    TwoViewConfig, TwoViewGeometry, TwoViewGeometryOptions, estimate_two_view_geometry, median_tri_angle_deg,
+};
 // Errors and re-exports from colslam-geometry (Umeyama similarity included).
 pub use colslam_geometry::{Rigid3, Sim3, UmeyamaError, umeyama};
 pub use error::{EstimatorError, MAX_COORD};

@@ -115,7 +115,9 @@ pub struct TwoViewGeometry {
     pub median_tri_angle_deg: Option<f64>,
 }
 
-fn median_angle(pose: &RecoveredPose) -> Option<f64> {
+/// Median triangulation angle (degrees) of a recovered pose's points in
+/// front of both cameras; `None` when there is none.
+pub fn median_tri_angle_deg(pose: &RecoveredPose) -> Option<f64> {
     let c2 = pose.cam2_from_cam1.center();
     let mut angles: Vec<f64> = pose
         .points3d
@@ -201,7 +203,7 @@ pub fn estimate_two_view_geometry(
             if let Some(em) = out.essential {
                 let (p1, p2) = (masked(x1, &out.inlier_mask), masked(x2, &out.inlier_mask));
                 if let Ok(pose) = pose_from_essential(&em, &p1, &p2) {
-                    out.median_tri_angle_deg = median_angle(&pose);
+                    out.median_tri_angle_deg = median_tri_angle_deg(&pose);
                     out.cam2_from_cam1 = Some(pose.cam2_from_cam1);
                 }
             }
@@ -210,7 +212,7 @@ pub fn estimate_two_view_geometry(
             if let Some(hr) = h.as_ref() {
                 let (p1, p2) = (masked(x1, &hr.inlier_mask), masked(x2, &hr.inlier_mask));
                 if let Ok(pose) = pose_from_homography(&hr.model, &p1, &p2) {
-                    let angle = median_angle(&pose);
+                    let angle = median_tri_angle_deg(&pose);
                     let pure_rotation = pose.cam2_from_cam1.translation.norm() == 0.0
                         || angle.is_none_or(|a| a < opts.max_panoramic_tri_angle_deg);
                     if pure_rotation {

@@ -161,6 +161,11 @@ pub struct InitOptions {
     /// Minimum 3D points after initialisation (ORB-SLAM asks for 50, COLMAP for one).
     #[cfg_attr(feature = "cli", arg(long, value_name = "N", default_value_t = InitOptions::default().init_min_points))]
     pub init_min_points: usize,
+    /// Resolve a planar initial pair's two plausible homography decompositions by the matches off the plane; refuse the pair when they tie.
+    ///
+    /// Forward motion over a floor or along a wall makes the swapped decomposition (translation along the plane's normal) keep as many points in front as the true one, and the pose from the homography takes it: the synthetic drive at 320x240 then placed its first frames 4x too far apart. Off by default until measured on the whole suite (docs/benchmarks.md).
+    #[cfg_attr(feature = "cli", arg(long, value_name = "BOOL", default_value_t = InitOptions::default().init_resolve_planar, action = clap::ArgAction::Set))]
+    pub init_resolve_planar: bool,
 }
 
 impl Default for InitOptions {
@@ -171,6 +176,7 @@ impl Default for InitOptions {
             init_max_tri_angle: 180.0,
             init_min_inliers: 100,
             init_min_points: 50,
+            init_resolve_planar: false,
         }
     }
 }

@@ -7,7 +7,8 @@ use crate::options::{GlobalBaTolerance, INIT_TWO_VIEW_TRIALS, SlamOptions, VERIF
 use crate::timing::{Stage, StageTimings};
 use colslam_camera::Camera;
 use colslam_estimators::{
-    RansacOptions, TwoViewConfig, TwoViewGeometry, TwoViewGeometryOptions, estimate_two_view_geometry,
+    RansacOptions, RecoveredPose, TwoViewConfig, TwoViewGeometry, TwoViewGeometryOptions, essential_from_pose,
+    estimate_two_view_geometry, homography_poses, median_tri_angle_deg, sampson_error_sq,
 };
 use colslam_features::Match;
 use colslam_geometry::{Rigid3, Vec2};
@@ -44,6 +45,84 @@ pub fn two_view(
     estimate_two_view_geometry(&x1, &x2, &opts).ok()
 }
 
+/// A rival decomposition of a planar pair's homography is plausible when it
+/// keeps at least this share of the best one's points in front of both
+/// cameras (ORB-SLAM's `ReconstructH` asks the second best for less than
+/// 0.75 of the best).
+const PLANAR_AMBIGUITY_RATIO: f64 = 0.75;
+
+/// Decompositions whose translations differ by less than this (degrees) are
+/// the same solution, not rivals.
+const PLANAR_RIVAL_MIN_ANGLE_DEG: f64 = 10.0;
+
+/// How a planar pair's pose stands against its homography's other
+/// decompositions.
+#[derive(Debug, Clone, PartialEq)]
+enum PlanarPose {
+    /// No plausible rival, or the best supported by the matches off the plane.
+    Clear,
+    /// The rival, which the matches off the plane support better, with its
+    /// median triangulation angle (degrees).
+    Rival(Rigid3, f64),
+    /// The two explain the matches equally well.
+    Ambiguous,
+}
+
+/// Which decomposition of a planar pair's homography to trust. Moving
+/// towards a plane (forward motion over a floor, along a wall) makes the
+/// swapped decomposition (translation along the plane's normal) keep as
+/// many points in front of both cameras as the true one, often more, with
+/// a much larger, wrong triangulation angle. Only the matches off the plane
+/// tell them apart: they satisfy the true pose's epipolar geometry, not the
+/// swapped one's; so the rival is taken when more of all the pair's matches
+/// lie within the verification threshold of its epipolar geometry, and the
+/// pair is ambiguous on a tie.
+fn planar_pose(tvg: &TwoViewGeometry, a: &FrameData, b: &FrameData, matches: &[Match], focal: f64) -> PlanarPose {
+    let Some(h) = tvg.homography else { return PlanarPose::Clear };
+    let all: Vec<(Vec2, Vec2)> = matches
+        .iter()
+        .filter_map(|m| Some((*a.normalized.get(m.query as usize)?, *b.normalized.get(m.train as usize)?)))
+        .collect();
+    let (x1, x2): (Vec<Vec2>, Vec<Vec2>) =
+        all.iter().zip(&tvg.inlier_mask).filter(|(_, k)| **k).map(|(x, _)| *x).unzip();
+    let Ok(mut poses) = homography_poses(&h, &x1, &x2) else { return PlanarPose::Clear };
+    poses.sort_by_key(|p| std::cmp::Reverse(p.num_valid));
+    let Some((best, rest)) = poses.split_first() else { return PlanarPose::Clear };
+    let t0 = best.cam2_from_cam1.translation;
+    let Some(rival) = rest.iter().find(|p| {
+        let t = p.cam2_from_cam1.translation;
+        let cos = (t.dot(&t0) / (t.norm() * t0.norm())).clamp(-1.0, 1.0);
+        let distinct = !cos.is_finite() || cos.acos().to_degrees() >= PLANAR_RIVAL_MIN_ANGLE_DEG;
+        distinct && p.num_valid as f64 >= PLANAR_AMBIGUITY_RATIO * best.num_valid as f64
+    }) else {
+        return PlanarPose::Clear;
+    };
+    let max = (VERIFY_MAX_ERROR_PX / focal).powi(2);
+    let support = |p: &RecoveredPose| {
+        let e = essential_from_pose(&p.cam2_from_cam1);
+        all.iter().filter(|(x1, x2)| sampson_error_sq(&e, x1, x2) <= max).count()
+    };
+    let (sb, sr) = (support(best), support(rival));
+    tracing::debug!(
+        "planar pair {} / {}: best in front {} epipolar {}, rival in front {} epipolar {} (of {} matches)",
+        a.index(),
+        b.index(),
+        best.num_valid,
+        sb,
+        rival.num_valid,
+        sr,
+        all.len()
+    );
+    match sr.cmp(&sb) {
+        std::cmp::Ordering::Less => PlanarPose::Clear,
+        std::cmp::Ordering::Equal => PlanarPose::Ambiguous,
+        std::cmp::Ordering::Greater => match median_tri_angle_deg(rival) {
+            Some(angle) => PlanarPose::Rival(rival.cam2_from_cam1, angle),
+            None => PlanarPose::Ambiguous,
+        },
+    }
+}
+
 /// Matches of the pair `(i, j)` in either order.
 fn count(pair_matches: &PairMatches, i: usize, j: usize) -> usize {
     let key = if i < j { (i, j) } else { (j, i) };
@@ -77,7 +156,9 @@ pub(crate) fn second_candidates(n: usize, first: usize, pair_matches: &PairMatch
 /// The verified relative pose and inlier matches of a candidate pair, when
 /// its geometry allows an initialisation: enough inliers, motion that is
 /// neither planar-only nor pure rotation, and a median triangulation angle
-/// of at least `init_min_tri_angle`.
+/// of at least `init_min_tri_angle`. With `init_resolve_planar` a planar
+/// pair takes the decomposition its matches off the plane support
+/// ([`planar_pose`]) and is refused when they cannot tell.
 fn verified_pair(
     a: &FrameData,
     b: &FrameData,
@@ -96,19 +177,26 @@ fn verified_pair(
         tvg.median_tri_angle_deg
     );
     let motion_ok = matches!(tvg.config, TwoViewConfig::Calibrated | TwoViewConfig::Planar);
+    if !motion_ok || tvg.num_inliers < opts.init.init_min_inliers {
+        return None;
+    }
+    let (mut rel, mut angle) = (tvg.cam2_from_cam1?, tvg.median_tri_angle_deg?);
+    if opts.init.init_resolve_planar && tvg.config == TwoViewConfig::Planar {
+        match planar_pose(&tvg, a, b, matches, focal) {
+            PlanarPose::Clear => {}
+            PlanarPose::Rival(r, a) => (rel, angle) = (r, a),
+            PlanarPose::Ambiguous => return None,
+        }
+    }
     // A pair seen from directions far apart shares few reliable matches
     // (binary descriptors are not invariant to strong perspective change):
     // its few points would carry the whole map's start
     // (`--init-max-tri-angle`).
-    let angle_ok = tvg
-        .median_tri_angle_deg
-        .is_some_and(|a| a >= opts.init.init_min_tri_angle && a <= opts.init.init_max_tri_angle);
-    let rel = tvg.cam2_from_cam1?;
-    if !motion_ok || !angle_ok || tvg.num_inliers < opts.init.init_min_inliers {
+    if angle < opts.init.init_min_tri_angle || angle > opts.init.init_max_tri_angle {
         return None;
     }
     let inliers = matches.iter().zip(&tvg.inlier_mask).filter(|(_, k)| **k).map(|(m, _)| *m).collect();
-    Some((rel, inliers, tvg.median_tri_angle_deg.unwrap_or(0.0)))
+    Some((rel, inliers, angle))
 }
 
 impl Mapper {
@@ -184,6 +272,96 @@ impl Mapper {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::frame::tests::frame_data;
+    use crate::options::InitOptions;
+    use colslam_geometry::{SplitMix64, Vec3};
+
+    /// Two frames seeing `points` (camera-1 coordinates) from camera 1 and
+    /// from `cam2_from_cam1`, with `noise_px` pixels of noise at a focal
+    /// length of 300, and their identity matches.
+    fn pair(points: &[Vec3], cam2_from_cam1: &Rigid3, noise_px: f64, seed: u64) -> (FrameData, FrameData, Vec<Match>) {
+        let mut rng = SplitMix64::new(seed);
+        let mut noisy =
+            |p: Vec3| Vec2::new(p.x / p.z, p.y / p.z) + Vec2::new(rng.normal(), rng.normal()) * (noise_px / 300.0);
+        let x1 = points.iter().map(|p| noisy(*p)).collect();
+        let x2 = points.iter().map(|p| noisy(cam2_from_cam1.transform_point(p))).collect();
+        (frame_data(0, x1), frame_data(3, x2), matches(points.len()))
+    }
+
+    /// Points on a plane in front of camera 1: `height` below it (a floor,
+    /// y down) when `wall` is false, else a wall `height` ahead.
+    fn plane(n: usize, height: f64, wall: bool, seed: u64) -> Vec<Vec3> {
+        let mut rng = SplitMix64::new(seed);
+        (0..n)
+            .map(|_| {
+                let (a, b) = (rng.uniform(-4.0, 4.0), rng.uniform(4.0, 14.0));
+                if wall { Vec3::new(a, b - 9.0, height) } else { Vec3::new(a, height, b) }
+            })
+            .collect()
+    }
+
+    /// Degrees between camera 2's centre (in camera 1) and the optical axis.
+    fn off_axis_deg(cam2_from_cam1: &Rigid3) -> f64 {
+        let c = cam2_from_cam1.inverse().translation;
+        (c.z / c.norm()).clamp(-1.0, 1.0).acos().to_degrees()
+    }
+
+    /// Forward motion (0.6 m ahead) over a floor 1.5 m below the camera.
+    fn forward() -> Rigid3 {
+        Rigid3::from_wxyz([1.0, 0.0, 0.0, 0.0], [0.0, 0.0, -0.6])
+    }
+
+    #[test]
+    fn the_matches_off_the_floor_pick_the_forward_decomposition() {
+        // A drive: mostly floor, some points above it (walls, boxes). The
+        // homography's best-supported decomposition moves the camera down
+        // onto the floor; the matches off the floor agree only with forward.
+        let mut points = plane(150, 1.5, false, 1);
+        let mut rng = SplitMix64::new(5);
+        points
+            .extend((0..25).map(|_| Vec3::new(rng.uniform(-4.0, 4.0), rng.uniform(-1.5, 1.0), rng.uniform(5.0, 14.0))));
+        let (a, b, m) = pair(&points, &forward(), 0.3, 2);
+        let tvg = two_view(&a, &b, &m, 300.0, 7, INIT_TWO_VIEW_TRIALS).unwrap();
+        assert_eq!(tvg.config, TwoViewConfig::Planar);
+        let mut opts = SlamOptions::default();
+        opts.init.init_min_tri_angle = 0.5;
+        let (off, _, off_angle) = verified_pair(&a, &b, &m, 300.0, &opts).expect("off: the homography's pose");
+        assert!(off_axis_deg(&off) > 45.0, "off by default: the swapped pose, {} deg", off_axis_deg(&off));
+        opts.init.init_resolve_planar = true;
+        let (on, _, on_angle) = verified_pair(&a, &b, &m, 300.0, &opts).expect("resolved");
+        assert!(off_axis_deg(&on) < 3.0, "{} deg off the axis", off_axis_deg(&on));
+        assert!(on_angle < off_angle, "the true pose's angle {on_angle} is the smaller (swapped: {off_angle})");
+    }
+
+    #[test]
+    fn a_flat_floor_alone_cannot_tell_and_is_not_an_initial_pair() {
+        let (a, b, m) = pair(&plane(150, 1.5, false, 1), &forward(), 0.0, 2);
+        let tvg = two_view(&a, &b, &m, 300.0, 7, INIT_TWO_VIEW_TRIALS).unwrap();
+        assert_eq!(tvg.config, TwoViewConfig::Planar);
+        assert_eq!(planar_pose(&tvg, &a, &b, &m, 300.0), PlanarPose::Ambiguous);
+        let mut opts = SlamOptions {
+            init: InitOptions { init_min_tri_angle: 0.5, ..InitOptions::default() },
+            ..SlamOptions::default()
+        };
+        assert!(verified_pair(&a, &b, &m, 300.0, &opts).is_some(), "off by default");
+        opts.init.init_resolve_planar = true;
+        assert!(verified_pair(&a, &b, &m, 300.0, &opts).is_none());
+    }
+
+    #[test]
+    fn a_pair_moving_along_a_wall_is_clear() {
+        // Sideways motion in front of a wall: the swapped decomposition puts
+        // most points behind a camera, so the pose is clear and the pair
+        // still starts a map.
+        let sideways = Rigid3::from_wxyz([1.0, 0.0, 0.0, 0.0], [-0.8, 0.0, 0.0]);
+        let (a, b, m) = pair(&plane(150, 6.0, true, 3), &sideways, 0.3, 4);
+        let tvg = two_view(&a, &b, &m, 300.0, 7, INIT_TWO_VIEW_TRIALS).unwrap();
+        assert_eq!(tvg.config, TwoViewConfig::Planar);
+        assert_eq!(planar_pose(&tvg, &a, &b, &m, 300.0), PlanarPose::Clear);
+        let mut opts = SlamOptions::default();
+        opts.init.init_resolve_planar = true;
+        assert!(verified_pair(&a, &b, &m, 300.0, &opts).is_some());
+    }
 
     fn matches(n: usize) -> Vec<Match> {
         (0..n as u32).map(|k| Match { query: k, train: k, distance: 0.0 }).collect()

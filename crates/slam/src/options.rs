@@ -468,11 +468,11 @@ impl MapperOptions {
 
 /// Scale (px, of a residual weighted by its keypoint's level) of the Cauchy
 /// loss of the global bundle adjustments that refine the intrinsics. Their
-/// squared loss lets the few mismatches the filter keeps (1-4 px) pull the
-/// focal length along its weak direction: on the synthetic room it ended
-/// 1.75 % long although the same map with the true poses fits the true
-/// focal length (docs/benchmarks.md, "Why the synthetic room's focal length
-/// ended 1.75 % long"). COLMAP's robust choice, as in its bundle adjuster.
+/// squared loss lets the few mismatches the filter keeps (a few px) pull the
+/// focal length along its weak direction: the synthetic room's ended long
+/// although the same map with the true poses fits the true focal length
+/// (docs/benchmarks.md, "Why the synthetic room's focal length ended 1.75 %
+/// long"). Cauchy is COLMAP's robust choice.
 pub const SELF_CALIBRATION_LOSS_SCALE: f64 = 1.0;
 
 /// Function tolerance of the global BA that ends the rolling-shutter
@@ -511,9 +511,14 @@ pub struct RefineOptions {
     pub refine_intrinsics: bool,
     /// With refined intrinsics of a one-focal pinhole camera (a guess), try a radial distortion term (SIMPLE_RADIAL) at the end and keep it when it fits significantly better.
     ///
-    /// Off by default: it finds the synthetic lenses' focal length within 1 %, but on TUM fr1 (rolling shutter) the radial term trades against the focal length (+4 %).
+    /// Off by default: with `--robust-intrinsics` it finds the focal length of synthetic distorted lenses, but on TUM fr1 (rolling shutter) the radial term trades against the focal length (docs/benchmarks.md).
     #[cfg_attr(feature = "cli", arg(long))]
     pub estimate_distortion: bool,
+    /// With refined intrinsics, a robust (Cauchy 1 px) loss in the global bundle adjustments.
+    ///
+    /// Mismatches then no longer pull the guessed focal length (the synthetic room, TUM and Strecha end closer to the truth: docs/benchmarks.md). Off by default: a focal length that starts far off can stay there, its own residuals at the image borders taken for outliers.
+    #[cfg_attr(feature = "cli", arg(long))]
+    pub robust_intrinsics: bool,
     /// Localise every non-keyframe against the final map.
     #[cfg_attr(feature = "cli", arg(long, value_name = "BOOL", default_value_t = RefineOptions::default().localize_all_frames, action = clap::ArgAction::Set))]
     pub localize_all_frames: bool,
@@ -551,6 +556,7 @@ impl Default for RefineOptions {
         Self {
             refine_intrinsics: false,
             estimate_distortion: false,
+            robust_intrinsics: false,
             localize_all_frames: true,
             refine_all_frames: false,
             match_overlapping: 0,
@@ -670,10 +676,11 @@ fn in_range(v: f64, lo: f64, hi: f64) -> bool {
 impl SlamOptions {
     /// Global bundle adjustment options stopped at `tolerance`
     /// ([`MapperOptions::global_ba`]), robust
-    /// ([`SELF_CALIBRATION_LOSS_SCALE`]) when they refine the intrinsics.
+    /// ([`SELF_CALIBRATION_LOSS_SCALE`]) when they refine the intrinsics
+    /// and `--robust-intrinsics` asks for it.
     pub fn global_ba(&self, tolerance: GlobalBaTolerance) -> BundleOptions {
         let mut ba = self.mapper.global_ba(tolerance);
-        if self.refine.refine_intrinsics {
+        if self.refine.refine_intrinsics && self.refine.robust_intrinsics {
             ba.ba.loss = colslam_optim::LossFunction::Cauchy(SELF_CALIBRATION_LOSS_SCALE);
         }
         ba

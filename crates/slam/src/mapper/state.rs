@@ -69,8 +69,7 @@ pub const RADIAL_MIN_KEYFRAMES: usize = 5;
 
 /// Cost gain (in residual variances, chi-square with one degree of
 /// freedom) above which the radial term is kept: 0.1 % of false positives on
-/// an undistorted camera (the synthetic room's gain is under 1; k 0.04 to
-/// 0.09 gains 70 and more, docs/benchmarks.md).
+/// an undistorted camera (the gains measured: docs/benchmarks.md).
 pub const RADIAL_GAIN_CHI2: f64 = 10.83;
 
 /// Global refinements (BA, track completion, filtering) of a map whose

@@ -516,7 +516,7 @@ pub struct RefineOptions {
     pub estimate_distortion: bool,
     /// With refined intrinsics, a robust (Cauchy 1 px) loss in the global bundle adjustments.
     ///
-    /// Mismatches then no longer pull the guessed focal length (the synthetic room, TUM and Strecha end closer to the truth: docs/benchmarks.md). Off by default: a focal length that starts far off can stay there, its own residuals at the image borders taken for outliers.
+    /// Once a global BA moves the focal length by under 1 %: mismatches then no longer pull it (the synthetic room, TUM and Strecha end closer to the truth: docs/benchmarks.md). Off by default: TUM's trajectory is no better.
     #[cfg_attr(feature = "cli", arg(long))]
     pub robust_intrinsics: bool,
     /// Localise every non-keyframe against the final map.
@@ -676,11 +676,11 @@ fn in_range(v: f64, lo: f64, hi: f64) -> bool {
 impl SlamOptions {
     /// Global bundle adjustment options stopped at `tolerance`
     /// ([`MapperOptions::global_ba`]), robust
-    /// ([`SELF_CALIBRATION_LOSS_SCALE`]) when they refine the intrinsics
-    /// and `--robust-intrinsics` asks for it.
-    pub fn global_ba(&self, tolerance: GlobalBaTolerance) -> BundleOptions {
+    /// ([`SELF_CALIBRATION_LOSS_SCALE`]) when they refine the intrinsics,
+    /// `--robust-intrinsics` asks for it and the focal length has `settled`.
+    pub fn global_ba(&self, tolerance: GlobalBaTolerance, settled: bool) -> BundleOptions {
         let mut ba = self.mapper.global_ba(tolerance);
-        if self.refine.refine_intrinsics && self.refine.robust_intrinsics {
+        if self.refine.refine_intrinsics && self.refine.robust_intrinsics && settled {
             ba.ba.loss = colslam_optim::LossFunction::Cauchy(SELF_CALIBRATION_LOSS_SCALE);
         }
         ba

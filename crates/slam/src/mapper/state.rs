@@ -48,6 +48,9 @@ pub struct Mapper {
     pub(super) initial_frames: (usize, usize),
     /// Registered images and points at the last global BA.
     pub(super) last_global: (usize, usize),
+    /// Relative change of the focal length in the last global BA (infinite
+    /// before the first): `--robust-intrinsics` waits for it to settle.
+    pub(super) focal_step: f64,
     /// Keypoint standard deviations (px) of the keyframes, for weighting
     /// bundle adjustment by pyramid level.
     pub(super) sigmas: KeypointSigmas,
@@ -61,6 +64,12 @@ pub struct Mapper {
     /// `loop_closure.rs`).
     pub(super) loops: super::loop_closure::LoopState,
 }
+
+/// Relative change of the focal length in a global BA under which it has
+/// settled: from then on `--robust-intrinsics` makes the BAs robust. Before,
+/// the residuals a focal length far off causes at the image borders would
+/// be taken for outliers and hold it there.
+const FOCAL_SETTLED: f64 = 0.01;
 
 /// Keyframes a map needs before a radial distortion term is tried on its
 /// camera ([`Mapper::try_radial_distortion`]): fewer keep too few
@@ -109,6 +118,7 @@ impl Mapper {
             records: RecordStore::default(),
             initial_frames: (0, 0),
             last_global: (0, 0),
+            focal_step: f64::INFINITY,
             sigmas: KeypointSigmas::default(),
             intrinsics_version: 0,
             culled: 0,
@@ -293,10 +303,12 @@ impl Mapper {
         opts: &SlamOptions,
         timings: &mut StageTimings,
     ) -> Result<colslam_optim::BaReport, SfmError> {
-        let ba = opts.global_ba(tolerance);
+        let ba = opts.global_ba(tolerance, self.focal_step < FOCAL_SETTLED);
         let refine = opts.refine.refine_intrinsics;
         self.log_global_probe("before");
+        let before = self.focal()?;
         let report = timings.time(Stage::GlobalBa, || adjust_global(&mut self.rec, refine, &ba))?;
+        self.focal_step = (self.focal()? / before - 1.0).abs();
         self.intrinsics_refined(opts);
         tracing::debug!(
             "map {}: global BA over {} images / {} points: cost {:.4e} -> {:.4e} in {} iterations ({:?})",
@@ -360,7 +372,7 @@ impl Mapper {
         if camera.model != CameraModelId::SimplePinhole || self.keyframes.len() < RADIAL_MIN_KEYFRAMES {
             return Ok(());
         }
-        let ba = opts.global_ba(GlobalBaTolerance::Converged);
+        let ba = opts.global_ba(GlobalBaTolerance::Converged, true);
         let mut pinhole = self.rec.clone();
         let p = timings.time(Stage::GlobalBa, || adjust_global(&mut pinhole, true, &ba))?;
         let mut radial = self.rec.clone();

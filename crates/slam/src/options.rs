@@ -472,6 +472,15 @@ impl MapperOptions {
     }
 }
 
+/// Scale (px, of a residual weighted by its keypoint's level) of the Cauchy
+/// loss of the global bundle adjustments that refine the intrinsics. Their
+/// squared loss lets the few mismatches the filter keeps (a few px) pull the
+/// focal length along its weak direction: the synthetic room's ended long
+/// although the same map with the true poses fits the true focal length
+/// (docs/benchmarks.md, "Why the synthetic room's focal length ended 1.75 %
+/// long"). Cauchy is COLMAP's robust choice.
+pub const SELF_CALIBRATION_LOSS_SCALE: f64 = 1.0;
+
 /// Function tolerance of the global BA that ends the rolling-shutter
 /// compensation: it starts from observations moved by pixels, so at Ceres'
 /// 1e-6 it runs many more iterations for the same trajectory
@@ -506,6 +515,16 @@ pub struct RefineOptions {
     /// Always on for a camera whose focal length was guessed.
     #[cfg_attr(feature = "cli", arg(long))]
     pub refine_intrinsics: bool,
+    /// With refined intrinsics of a one-focal pinhole camera (a guess), try a radial distortion term (SIMPLE_RADIAL) at the end and keep it when it fits significantly better.
+    ///
+    /// Off by default: with `--robust-intrinsics` it finds the focal length of synthetic distorted lenses, but on TUM fr1 (rolling shutter) the radial term trades against the focal length (docs/benchmarks.md).
+    #[cfg_attr(feature = "cli", arg(long))]
+    pub estimate_distortion: bool,
+    /// With refined intrinsics, a robust (Cauchy 1 px) loss in the global bundle adjustments.
+    ///
+    /// Once a global BA moves the focal length by under 1 %: mismatches then no longer pull it (the synthetic room, TUM and Strecha end closer to the truth: docs/benchmarks.md). Off by default: TUM's trajectory is no better.
+    #[cfg_attr(feature = "cli", arg(long))]
+    pub robust_intrinsics: bool,
     /// Localise every non-keyframe against the final map.
     #[cfg_attr(feature = "cli", arg(long, value_name = "BOOL", default_value_t = RefineOptions::default().localize_all_frames, action = clap::ArgAction::Set))]
     pub localize_all_frames: bool,
@@ -542,6 +561,8 @@ impl Default for RefineOptions {
     fn default() -> Self {
         Self {
             refine_intrinsics: false,
+            estimate_distortion: false,
+            robust_intrinsics: false,
             localize_all_frames: true,
             refine_all_frames: false,
             match_overlapping: 0,
@@ -659,6 +680,18 @@ fn in_range(v: f64, lo: f64, hi: f64) -> bool {
 }
 
 impl SlamOptions {
+    /// Global bundle adjustment options stopped at `tolerance`
+    /// ([`MapperOptions::global_ba`]), robust
+    /// ([`SELF_CALIBRATION_LOSS_SCALE`]) when they refine the intrinsics,
+    /// `--robust-intrinsics` asks for it and the focal length has `settled`.
+    pub fn global_ba(&self, tolerance: GlobalBaTolerance, settled: bool) -> BundleOptions {
+        let mut ba = self.mapper.global_ba(tolerance);
+        if self.refine.refine_intrinsics && self.refine.robust_intrinsics && settled {
+            ba.ba.loss = colslam_optim::LossFunction::Cauchy(SELF_CALIBRATION_LOSS_SCALE);
+        }
+        ba
+    }
+
     /// Checks every option; the error names the option as on the command
     /// line and says what is allowed.
     pub fn validate(&self) -> Result<(), SlamError> {

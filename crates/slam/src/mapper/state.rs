@@ -6,7 +6,7 @@ use crate::frame::{FrameData, FrameRecord};
 use crate::options::{GlobalBaTolerance, SlamOptions};
 use crate::records::{RecordStore, SpillConfig};
 use crate::timing::{Stage, StageTimings};
-use colslam_camera::Camera;
+use colslam_camera::{Camera, CameraModelId};
 use colslam_scene::{CameraId, ImageId, Point3DId, Reconstruction, SceneError};
 use colslam_sfm::bundle::{KeypointSigmas, adjust_global};
 use colslam_sfm::triangulator::complete_and_merge_all;
@@ -48,6 +48,9 @@ pub struct Mapper {
     pub(super) initial_frames: (usize, usize),
     /// Registered images and points at the last global BA.
     pub(super) last_global: (usize, usize),
+    /// Relative change of the focal length in the last global BA (infinite
+    /// before the first): `--robust-intrinsics` waits for it to settle.
+    pub(super) focal_step: f64,
     /// Keypoint standard deviations (px) of the keyframes, for weighting
     /// bundle adjustment by pyramid level.
     pub(super) sigmas: KeypointSigmas,
@@ -60,6 +63,36 @@ pub struct Mapper {
     /// Place recognition and the loops closed (`--loop-closure`,
     /// `loop_closure.rs`).
     pub(super) loops: super::loop_closure::LoopState,
+}
+
+/// Relative change of the focal length in a global BA under which it has
+/// settled: from then on `--robust-intrinsics` makes the BAs robust. Before,
+/// the residuals a focal length far off causes at the image borders would
+/// be taken for outliers and hold it there.
+const FOCAL_SETTLED: f64 = 0.01;
+
+/// Keyframes a map needs before a radial distortion term is tried on its
+/// camera ([`Mapper::try_radial_distortion`]): fewer keep too few
+/// observations near the image borders, where distortion shows.
+pub const RADIAL_MIN_KEYFRAMES: usize = 5;
+
+/// Cost gain (in residual variances, chi-square with one degree of
+/// freedom) above which the radial term is kept: 0.1 % of false positives on
+/// an undistorted camera (the gains measured: docs/benchmarks.md).
+pub const RADIAL_GAIN_CHI2: f64 = 10.83;
+
+/// Global refinements (BA, track completion, filtering) of a map whose
+/// camera was given a radial term.
+const RADIAL_REFINEMENTS: usize = 2;
+
+/// COLMAP's `Camera::HasBogusParams` with its mapper's defaults: a focal
+/// length 0.1 to 10 times the larger image side and extra parameters of at
+/// most 1 in magnitude.
+pub(crate) fn plausible_camera(camera: &Camera) -> bool {
+    let side = camera.width.max(camera.height) as f64;
+    let focal_ok = [camera.focal_x(), camera.focal_y()].iter().all(|f| (0.1 * side..=10.0 * side).contains(f));
+    let extras = camera.model.extra_params_idxs();
+    focal_ok && extras.iter().all(|&i| camera.params.get(i).is_some_and(|v| v.is_finite() && v.abs() <= 1.0))
 }
 
 /// Scale between ORB pyramid levels: a keypoint found at octave `o` is
@@ -85,6 +118,7 @@ impl Mapper {
             records: RecordStore::default(),
             initial_frames: (0, 0),
             last_global: (0, 0),
+            focal_step: f64::INFINITY,
             sigmas: KeypointSigmas::default(),
             intrinsics_version: 0,
             culled: 0,
@@ -269,10 +303,12 @@ impl Mapper {
         opts: &SlamOptions,
         timings: &mut StageTimings,
     ) -> Result<colslam_optim::BaReport, SfmError> {
-        let ba = opts.mapper.global_ba(tolerance);
+        let ba = opts.global_ba(tolerance, self.focal_step < FOCAL_SETTLED);
         let refine = opts.refine.refine_intrinsics;
         self.log_global_probe("before");
+        let before = self.focal()?;
         let report = timings.time(Stage::GlobalBa, || adjust_global(&mut self.rec, refine, &ba))?;
+        self.focal_step = (self.focal()? / before - 1.0).abs();
         self.intrinsics_refined(opts);
         tracing::debug!(
             "map {}: global BA over {} images / {} points: cost {:.4e} -> {:.4e} in {} iterations ({:?})",
@@ -315,8 +351,66 @@ impl Mapper {
                 GlobalBaTolerance::Converged
             };
             self.global_refine(tolerance, opts, timings)?;
+            if opts.refine.refine_intrinsics && opts.refine.estimate_distortion {
+                self.try_radial_distortion(opts, timings)?;
+            }
         }
         self.rec.update_point_errors()?;
+        Ok(())
+    }
+
+    /// Once the map is final, gives a refined one-focal pinhole camera (a
+    /// guess or an estimate) a radial distortion term when the data ask for
+    /// it: converged global BAs of the map with SIMPLE_PINHOLE and with
+    /// SIMPLE_RADIAL (k from 0), and the radial camera kept when its cost
+    /// gain is significant ([`RADIAL_GAIN_CHI2`]) and its parameters are
+    /// plausible (COLMAP's bogus-camera check). Only now: the map made with
+    /// the focal length alone carries k, while k freed from the first
+    /// keyframes trades against the focal length (docs/history.md).
+    fn try_radial_distortion(&mut self, opts: &SlamOptions, timings: &mut StageTimings) -> Result<(), SfmError> {
+        let camera = self.camera()?.clone();
+        if camera.model != CameraModelId::SimplePinhole || self.keyframes.len() < RADIAL_MIN_KEYFRAMES {
+            return Ok(());
+        }
+        let ba = opts.global_ba(GlobalBaTolerance::Converged, true);
+        let mut pinhole = self.rec.clone();
+        let p = timings.time(Stage::GlobalBa, || adjust_global(&mut pinhole, true, &ba))?;
+        let mut radial = self.rec.clone();
+        if let Some(c) = radial.camera_mut(self.camera_id) {
+            *c = Camera {
+                model: CameraModelId::SimpleRadial,
+                params: [camera.params.as_slice(), &[0.0]].concat(),
+                ..camera
+            };
+        }
+        let r = timings.time(Stage::GlobalBa, || adjust_global(&mut radial, true, &ba))?;
+        // Residual variance of the pinhole fit: the gain in units of it is
+        // chi-square with one degree of freedom when k is truly 0.
+        let variance = 2.0 * p.final_cost / p.num_residuals.max(1) as f64;
+        let gain = 2.0 * (p.final_cost - r.final_cost) / variance.max(f64::MIN_POSITIVE);
+        let refined =
+            radial.camera(self.camera_id).map(|c| c.camera.clone()).ok_or(SceneError::UnknownCamera(self.camera_id))?;
+        let plausible = plausible_camera(&refined);
+        let keep = plausible && r.num_residuals == p.num_residuals && gain > RADIAL_GAIN_CHI2;
+        tracing::info!(
+            "map {}: radial distortion {}: k {:.4}, focal {:.1} px (pinhole {:.1}), cost gain {gain:.1} (threshold {RADIAL_GAIN_CHI2}){}",
+            self.index,
+            if keep { "estimated" } else { "left out" },
+            refined.params.get(3).copied().unwrap_or(0.0),
+            refined.focal_x(),
+            pinhole.camera(self.camera_id).map_or(f64::NAN, |c| c.camera.focal_x()),
+            if plausible { "" } else { ", implausible parameters" }
+        );
+        if !keep {
+            return Ok(());
+        }
+        self.rec = radial;
+        self.intrinsics_refined(opts);
+        // The tracks the pinhole map filtered near the borders come back,
+        // and the radial camera is refined with them.
+        for _ in 0..RADIAL_REFINEMENTS {
+            self.global_refine(GlobalBaTolerance::Converged, opts, timings)?;
+        }
         Ok(())
     }
 

@@ -1396,6 +1396,24 @@ fn refresh_keyframes_renormalizes_only_stale_keyframes() {
     assert_ne!(map.keyframes[0].data.normalized, before[0]);
 }
 
+#[test]
+fn implausible_cameras_are_those_colmap_calls_bogus() {
+    use super::state::plausible_camera;
+    let radial = |f: f64, k: f64| Camera {
+        model: colslam_camera::CameraModelId::SimpleRadial,
+        width: 640,
+        height: 480,
+        params: vec![f, 320.0, 240.0, k],
+    };
+    assert!(plausible_camera(&radial(525.0, 0.05)));
+    assert!(plausible_camera(&radial(64.0, -1.0)), "bounds included");
+    assert!(!plausible_camera(&radial(63.0, 0.0)), "focal length under 0.1 x the side");
+    assert!(!plausible_camera(&radial(6401.0, 0.0)), "focal length over 10 x the side");
+    assert!(!plausible_camera(&radial(525.0, 1.5)), "distortion over 1");
+    assert!(!plausible_camera(&radial(525.0, f64::NAN)));
+    assert!(plausible_camera(&Camera::simple_pinhole(640, 480, 525.0, 320.0, 240.0)));
+}
+
 // ----- keyframe culling (tests/cull.rs) -----------------------------------------
 
 mod cull;

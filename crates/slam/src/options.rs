@@ -522,8 +522,8 @@ pub struct RefineOptions {
     pub estimate_distortion: bool,
     /// With refined intrinsics, a robust (Cauchy 1 px) loss in the global bundle adjustments.
     ///
-    /// Once a global BA moves the focal length by under 1 %: mismatches then no longer pull it (the synthetic room, TUM and Strecha end closer to the truth: docs/benchmarks.md). Off by default: TUM's trajectory is no better.
-    #[cfg_attr(feature = "cli", arg(long))]
+    /// Once a global BA moves the focal length by under 1 %: mismatches then no longer pull it (the synthetic room, TUM and Strecha end closer to the truth, entry and castle with a third to a half of the error: docs/benchmarks.md). A calibrated camera, whose intrinsics are not refined, is unaffected.
+    #[cfg_attr(feature = "cli", arg(long, value_name = "BOOL", default_value_t = RefineOptions::default().robust_intrinsics, action = clap::ArgAction::Set))]
     pub robust_intrinsics: bool,
     /// Localise every non-keyframe against the final map.
     #[cfg_attr(feature = "cli", arg(long, value_name = "BOOL", default_value_t = RefineOptions::default().localize_all_frames, action = clap::ArgAction::Set))]
@@ -562,7 +562,7 @@ impl Default for RefineOptions {
         Self {
             refine_intrinsics: false,
             estimate_distortion: false,
-            robust_intrinsics: false,
+            robust_intrinsics: true,
             localize_all_frames: true,
             refine_all_frames: false,
             match_overlapping: 0,

@@ -161,7 +161,9 @@ pub struct InitOptions {
     /// Minimum 3D points after initialisation (ORB-SLAM asks for 50, COLMAP for one).
     #[cfg_attr(feature = "cli", arg(long, value_name = "N", default_value_t = InitOptions::default().init_min_points))]
     pub init_min_points: usize,
-    /// Resolve a planar initial pair's two plausible homography decompositions by the matches off the plane; refuse the pair when they tie.
+    /// Decide a planar initial pair's pose by its matches off the plane.
+    ///
+    /// When two decompositions are plausible the matches off the plane decide; the pair is refused when they tie.
     ///
     /// Forward motion over a floor or along a wall makes the swapped decomposition (translation along the plane's normal) keep as many points in front as the true one, and the pose from the homography takes it: the synthetic drive at 320x240 then placed its first frames 4x too far apart. Off by default until measured on the whole suite (docs/benchmarks.md).
     #[cfg_attr(feature = "cli", arg(long, value_name = "BOOL", default_value_t = InitOptions::default().init_resolve_planar, action = clap::ArgAction::Set))]
@@ -515,12 +517,14 @@ pub struct RefineOptions {
     /// Always on for a camera whose focal length was guessed.
     #[cfg_attr(feature = "cli", arg(long))]
     pub refine_intrinsics: bool,
-    /// With refined intrinsics of a one-focal pinhole camera (a guess), try a radial distortion term (SIMPLE_RADIAL) at the end and keep it when it fits significantly better.
+    /// Try a radial distortion term (SIMPLE_RADIAL) on a refined one-focal camera at the end.
+    ///
+    /// With refined intrinsics of a one-focal pinhole camera (a guess), the term is kept when it fits significantly better.
     ///
     /// Off by default: with `--robust-intrinsics` it finds the focal length of synthetic distorted lenses, but on TUM fr1 (rolling shutter) the radial term trades against the focal length (docs/benchmarks.md).
     #[cfg_attr(feature = "cli", arg(long))]
     pub estimate_distortion: bool,
-    /// With refined intrinsics, a robust (Cauchy 1 px) loss in the global bundle adjustments.
+    /// With refined intrinsics, a robust (Cauchy 1 px) loss in the global BAs.
     ///
     /// Once a global BA moves the focal length by under 1 %: mismatches then no longer pull it (the synthetic room, TUM and Strecha end closer to the truth, entry and castle with a third to a half of the error: docs/benchmarks.md). A calibrated camera, whose intrinsics are not refined, is unaffected.
     #[cfg_attr(feature = "cli", arg(long, value_name = "BOOL", default_value_t = RefineOptions::default().robust_intrinsics, action = clap::ArgAction::Set))]

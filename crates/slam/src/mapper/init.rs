@@ -23,6 +23,16 @@ pub type PairMatches = HashMap<(usize, usize), Vec<Match>>;
 /// A new map and the window indices of its initial pair (earlier first).
 pub type Initialized = (Mapper, usize, usize);
 
+/// The matched keypoints' normalised coordinates in `a` and `b`, pair by
+/// pair; `None` when a match names a keypoint the frames lack.
+fn matched_normalized(a: &FrameData, b: &FrameData, matches: &[Match]) -> Option<(Vec<Vec2>, Vec<Vec2>)> {
+    matches
+        .iter()
+        .map(|m| Some((*a.normalized.get(m.query as usize)?, *b.normalized.get(m.train as usize)?)))
+        .collect::<Option<Vec<(Vec2, Vec2)>>>()
+        .map(|pairs| pairs.into_iter().unzip())
+}
+
 /// Two-view geometry between two frames' matched keypoints (`query` side
 /// first), with at most `max_trials` RANSAC trials per model.
 pub fn two_view(
@@ -33,11 +43,7 @@ pub fn two_view(
     seed: u64,
     max_trials: usize,
 ) -> Option<TwoViewGeometry> {
-    let x1: Vec<Vec2> = matches.iter().filter_map(|m| a.normalized.get(m.query as usize).copied()).collect();
-    let x2: Vec<Vec2> = matches.iter().filter_map(|m| b.normalized.get(m.train as usize).copied()).collect();
-    if x1.len() != matches.len() || x2.len() != matches.len() {
-        return None;
-    }
+    let (x1, x2) = matched_normalized(a, b, matches)?;
     let opts = TwoViewGeometryOptions {
         ransac: RansacOptions { confidence: 0.999, max_trials, ..ransac_options(VERIFY_MAX_ERROR_PX / focal, seed) },
         ..TwoViewGeometryOptions::default()
@@ -79,10 +85,8 @@ enum PlanarPose {
 /// pair is ambiguous on a tie.
 fn planar_pose(tvg: &TwoViewGeometry, a: &FrameData, b: &FrameData, matches: &[Match], focal: f64) -> PlanarPose {
     let Some(h) = tvg.homography else { return PlanarPose::Clear };
-    let all: Vec<(Vec2, Vec2)> = matches
-        .iter()
-        .filter_map(|m| Some((*a.normalized.get(m.query as usize)?, *b.normalized.get(m.train as usize)?)))
-        .collect();
+    let Some((n1, n2)) = matched_normalized(a, b, matches) else { return PlanarPose::Clear };
+    let all: Vec<(Vec2, Vec2)> = n1.into_iter().zip(n2).collect();
     let (x1, x2): (Vec<Vec2>, Vec<Vec2>) =
         all.iter().zip(&tvg.inlier_mask).filter(|(_, k)| **k).map(|(x, _)| *x).unzip();
     let Ok(mut poses) = homography_poses(&h, &x1, &x2) else { return PlanarPose::Clear };

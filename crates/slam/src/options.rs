@@ -223,10 +223,10 @@ pub struct KeyframeOptions {
     pub parallax_threshold: f64,
     /// Covisible keyframes of the reference a frame it no longer covers is matched to (0: off).
     ///
-    /// The nearest view among them (and the last keyframe) becomes the
-    /// reference of the flow test and of tracking, so a camera revisiting
-    /// mapped space tracks the old keyframes and adds few new ones (map
-    /// reuse).
+    /// In batches of 8, most covisible first, until one covers the view; the
+    /// nearest view among them (and the last keyframe) becomes the reference
+    /// of the flow test and of tracking, so a camera revisiting mapped space
+    /// tracks the old keyframes and adds few new ones (map reuse).
     #[cfg_attr(feature = "cli", arg(long, value_name = "N", default_value_t = KeyframeOptions::default().reuse_keyframes))]
     pub reuse_keyframes: usize,
 }
@@ -240,7 +240,7 @@ impl Default for KeyframeOptions {
             allow_pure_rotation: false,
             max_lost_frames: 15,
             parallax_threshold: 0.0,
-            reuse_keyframes: 0,
+            reuse_keyframes: 40,
         }
     }
 }
@@ -306,7 +306,7 @@ pub struct MapperOptions {
     /// Standard deviation 1.2^level pixels, as ORB-SLAM.
     #[cfg_attr(feature = "cli", arg(long))]
     pub weight_by_level: bool,
-    /// Remove keyframes whose points other keyframes see (ORB-SLAM's keyframe culling).
+    /// Remove keyframes whose points others see (ORB-SLAM's culling).
     ///
     /// After each local refinement, a keyframe of the local bundle (never
     /// the initial pair's, never the newest) whose 3D points are more than
@@ -314,7 +314,9 @@ pub struct MapperOptions {
     /// scale leaves the map; its frame is localised at the end like any
     /// other frame. Once tracking ends, every keyframe is checked the same
     /// way (the newest and those outside every later bundle included).
-    #[cfg_attr(feature = "cli", arg(long))]
+    /// On by default, as in ORB-SLAM (`--cull-keyframes false` keeps every
+    /// keyframe).
+    #[cfg_attr(feature = "cli", arg(long, value_name = "BOOL", default_value_t = MapperOptions::default().cull_keyframes, action = clap::ArgAction::Set))]
     pub cull_keyframes: bool,
     /// Close loops by appearance (bag of words, Sim(3) verification, correction).
     ///
@@ -345,7 +347,7 @@ impl Default for MapperOptions {
             local_ba_covisible: 0,
             global_ba_growth: 1.1,
             weight_by_level: false,
-            cull_keyframes: false,
+            cull_keyframes: true,
             loop_closure: true,
         }
     }

@@ -12,8 +12,8 @@ use crate::frontend::Frontend;
 use crate::keyframe::{ForceKeyframe, keyframe_decision, rotation_compensated_flow};
 use crate::mapper::init::{PairMatches, two_view};
 use crate::mapper::{Mapper, RegisterFailure, Registration};
-use crate::options::SlamOptions;
 use crate::options::{GlobalBaTolerance, KEYFRAME_TWO_VIEW_TRIALS};
+use crate::options::{KeyframeOptions, SlamOptions};
 use crate::records::SpillConfig;
 use crate::timing::{Stage, StageTimings};
 use colslam_estimators::TwoViewConfig;
@@ -84,37 +84,120 @@ fn too_little_parallax(
     rotation_compensated_flow(&x_frame, &x_kf, &kf_from_frame).is_some_and(|p| p <= threshold)
 }
 
-/// Index in `candidates` (keyframe positions, `matched` the frame's matches
-/// to each) of the reference for map reuse: among the keyframes the frame
-/// matches safely (at least `force` matches) the one with the smallest flow,
-/// the nearest view, so the flow test asks whether any keyframe near the
-/// view exists; when none is safe, the one whose 3D points it matches most.
-/// Ties: the earlier candidate (the current reference first).
-fn choose_reference(
-    map: &Mapper,
-    data: &FrameData,
-    candidates: &[usize],
-    matched: &[Vec<Match>],
-    camera: &colslam_camera::Camera,
-    force: usize,
-) -> Result<usize, SlamError> {
-    let (fx, fy) = (camera.focal_x(), camera.focal_y());
-    let mut nearest: Option<(usize, f64)> = None;
-    for (i, (&k, ms)) in candidates.iter().zip(matched).enumerate() {
-        if ms.len() < force {
-            continue;
-        }
-        let flow = flow_score(&data.features.keypoints, &map.keyframes()[k].data.features.keypoints, ms, fx, fy)?;
-        if nearest.is_none_or(|(_, f)| flow.score < f) {
-            nearest = Some((i, flow.score));
-        }
-    }
-    if let Some((i, _)) = nearest {
-        return Ok(i);
-    }
-    let scores: Vec<usize> = candidates.iter().zip(matched).map(|(&k, ms)| map_points_matched(map, k, ms)).collect();
-    Ok((0..scores.len()).fold(0, |b, i| if scores[i] > scores[b] { i } else { b }))
+/// A frame's search for its reference under map reuse
+/// (`--reuse-keyframes N`): the keyframes it is matched to and what their
+/// matches say about its view.
+struct ReuseSearch<'a> {
+    map: &'a Mapper,
+    data: &'a FrameData,
+    camera: &'a colslam_camera::Camera,
+    kopts: &'a KeyframeOptions,
 }
+
+impl ReuseSearch<'_> {
+    /// The flow of the frame to the keyframe at position `k` over the
+    /// frame's matches `ms` to it; `None` when the matches are too few to
+    /// track it safely (under the force-keyframe count).
+    fn flow(&self, k: usize, ms: &[Match]) -> Result<Option<f64>, SlamError> {
+        if ms.len() < self.kopts.force_keyframe_matches {
+            return Ok(None);
+        }
+        let kps = &self.map.keyframes()[k].data.features.keypoints;
+        let (fx, fy) = (self.camera.focal_x(), self.camera.focal_y());
+        Ok(Some(flow_score(&self.data.features.keypoints, kps, ms, fx, fy)?.score))
+    }
+
+    /// True when one of `candidates` (keyframe positions, `matched` the
+    /// frame's matches to each) covers the view: tracked safely at a flow
+    /// at most the keyframe threshold, so the frame is no keyframe candidate
+    /// against it.
+    fn covers(&self, candidates: &[usize], matched: &[Vec<Match>]) -> Result<bool, SlamError> {
+        for (&k, ms) in candidates.iter().zip(matched) {
+            if self.flow(k, ms)?.is_some_and(|f| f <= self.kopts.flow_threshold) {
+                return Ok(true);
+            }
+        }
+        Ok(false)
+    }
+
+    /// Index in `candidates` of the reference: among the keyframes the
+    /// frame tracks safely the one with the smallest flow, the nearest
+    /// view, so the flow test asks whether any keyframe near the view
+    /// exists; when none is safe, the one whose 3D points it matches most.
+    /// Ties: the earlier candidate (the current reference first).
+    fn choose(&self, candidates: &[usize], matched: &[Vec<Match>]) -> Result<usize, SlamError> {
+        let mut nearest: Option<(usize, f64)> = None;
+        for (i, (&k, ms)) in candidates.iter().zip(matched).enumerate() {
+            if let Some(flow) = self.flow(k, ms)?
+                && nearest.is_none_or(|(_, f)| flow < f)
+            {
+                nearest = Some((i, flow));
+            }
+        }
+        if let Some((i, _)) = nearest {
+            return Ok(i);
+        }
+        let scores: Vec<usize> =
+            candidates.iter().zip(matched).map(|(&k, ms)| map_points_matched(self.map, k, ms)).collect();
+        Ok((0..scores.len()).fold(0, |b, i| if scores[i] > scores[b] { i } else { b }))
+    }
+
+    /// The keyframes a frame that its reference at position `current` no
+    /// longer covers (`first`, its matches to it) is matched to, with the
+    /// matches: the reference's `n` most covisible keyframes in batches of
+    /// [`REUSE_BATCH`], most covisible first, the newest keyframe with the
+    /// first batch. The search stops at the first batch holding a keyframe
+    /// that covers the view, so a wide search (a revisit through a gap that
+    /// culling left) costs one batch where the nearest covisible keyframes
+    /// already cover the frame. When no batch covers it, the frame is a
+    /// keyframe candidate and only the first batch is returned: keyframes
+    /// less covisible with the reference are a reference only when they
+    /// cover the view (as a registration reference they made TUM fr1/rpy
+    /// drift on some seeds, docs/benchmarks.md).
+    fn candidates(
+        &self,
+        frontend: &Frontend,
+        current: usize,
+        first: Vec<Match>,
+        n: usize,
+        timings: &mut StageTimings,
+    ) -> Result<(Vec<usize>, Vec<Vec<Match>>), SlamError> {
+        let newest = self.map.keyframes().len() - 1;
+        let covisible = self.map.covisible_keyframes(current, n);
+        let mut batches = covisible.chunks(REUSE_BATCH).map(<[usize]>::to_vec).collect::<Vec<_>>();
+        match batches.first_mut() {
+            Some(b) => b.push(newest),
+            None => batches.push(vec![newest]),
+        }
+        let (mut candidates, mut matched) = (vec![current], vec![first]);
+        // Keeps the first of each: the current reference wins ties.
+        let mut seen = HashSet::from([current]);
+        let mut first_batch = None;
+        for mut batch in batches {
+            batch.retain(|k| seen.insert(*k));
+            let more: Result<Vec<Vec<Match>>, SlamError> = timings.time(Stage::Matching, || {
+                batch.par_iter().map(|&k| frontend.match_frames(self.data, &self.map.keyframes()[k].data)).collect()
+            });
+            let more = more?;
+            let covered = self.covers(&batch, &more)?;
+            candidates.extend(batch);
+            matched.extend(more);
+            if covered {
+                return Ok((candidates, matched));
+            }
+            first_batch.get_or_insert(candidates.len());
+        }
+        let keep = first_batch.unwrap_or(candidates.len());
+        candidates.truncate(keep);
+        matched.truncate(keep);
+        Ok((candidates, matched))
+    }
+}
+
+/// Covisible keyframes matched at once by map reuse's search
+/// (`--reuse-keyframes`): the search goes on batch by batch until a
+/// keyframe covers the view.
+const REUSE_BATCH: usize = 8;
 
 /// How many of `matches` (a frame's matches to the keyframe at position
 /// `k`) reach a keypoint of the keyframe that observes a 3D point: the map
@@ -653,11 +736,12 @@ impl Slam {
     /// while tracking backwards), when the current reference no longer
     /// passes for the frame's view (fewer than the force-keyframe matches, or
     /// flow above the threshold: it would be a candidate), the frame is also
-    /// matched to the reference's N most covisible keyframes and the last
-    /// keyframe, and the nearest view among them becomes the reference
-    /// ([`choose_reference`]; ORB-SLAM's reference keyframe is the one sharing
-    /// most map points). Looking further only then keeps the cost of a frame
-    /// the keyframe does cover at one matching.
+    /// matched to the last keyframe and the reference's N most covisible
+    /// keyframes, in batches until one covers the view, and the nearest view
+    /// among them becomes the reference ([`ReuseSearch`]; ORB-SLAM's
+    /// reference keyframe is the one sharing most map points). Looking
+    /// further only then keeps the cost of a frame the keyframe does cover
+    /// at one matching.
     fn reference_matches(&mut self, data: &FrameData) -> Result<Option<(usize, Vec<Match>)>, SlamError> {
         let n = self.opts.keyframes.reuse_keyframes;
         let State::Tracking(t) = &mut self.state else { return Ok(None) };
@@ -667,29 +751,23 @@ impl Slam {
             self.timings.time(Stage::Matching, || frontend.match_frames(data, &map.keyframes()[current].data))?;
         let reuse = n > 0 && !t.backward;
         let camera = map.camera().unwrap_or(&self.camera);
-        let kopts = &self.opts.keyframes;
-        let covers = reuse && first.len() >= kopts.force_keyframe_matches && {
-            let kps = &map.keyframes()[current].data.features.keypoints;
-            let flow = flow_score(&data.features.keypoints, kps, &first, camera.focal_x(), camera.focal_y())?;
-            flow.score <= kopts.flow_threshold
-        };
+        let search = ReuseSearch { map, data, camera, kopts: &self.opts.keyframes };
+        let covers = reuse && search.covers(&[current], std::slice::from_ref(&first))?;
         if !reuse || covers {
             t.reference = reuse.then(|| map.keyframes()[current].image_id);
             return Ok(Some((current, first)));
         }
-        let mut candidates = vec![current];
-        candidates.extend(map.covisible_keyframes(current, n));
-        candidates.push(map.keyframes().len() - 1);
-        // Keeps the first of each: the current reference wins ties.
-        let mut seen = HashSet::new();
-        candidates.retain(|k| seen.insert(*k));
-        let others: Result<Vec<Vec<Match>>, SlamError> = self.timings.time(Stage::Matching, || {
-            candidates[1..].par_iter().map(|&k| frontend.match_frames(data, &map.keyframes()[k].data)).collect()
-        });
-        let mut matched = vec![first];
-        matched.extend(others?);
-        let best = choose_reference(map, data, &candidates, &matched, camera, kopts.force_keyframe_matches)?;
+        let (candidates, matched) = search.candidates(frontend, current, first, n, &mut self.timings)?;
+        let best = search.choose(&candidates, &matched)?;
         let pos = candidates[best];
+        tracing::debug!(
+            "frame {}: reference keyframe {} (candidate {best} of {}, {} matches) instead of {}",
+            data.index(),
+            map.keyframes()[pos].image_id.0,
+            candidates.len(),
+            matched.get(best).map_or(0, Vec::len),
+            map.keyframes()[current].image_id.0
+        );
         t.reference = Some(map.keyframes()[pos].image_id);
         Ok(matched.into_iter().nth(best).map(|ms| (pos, ms)))
     }

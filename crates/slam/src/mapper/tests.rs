@@ -324,8 +324,14 @@ fn pose_error(g: &Sim3, cam_from_map: &Rigid3, truth: &Rigid3) -> f64 {
     angle.max(centre)
 }
 
+/// The defaults without keyframe culling: these tests check registration,
+/// refinement and localisation keyframe by keyframe on small exact scenes,
+/// where culling would remove the keyframes they look at (culling has its
+/// own tests, `tests/cull.rs`).
 fn opts() -> SlamOptions {
-    SlamOptions::default()
+    let mut o = SlamOptions::default();
+    o.mapper.cull_keyframes = false;
+    o
 }
 
 fn initialize(scene: &Scene, window: &[usize], opts: &SlamOptions) -> Option<(Mapper, usize, usize)> {

@@ -94,6 +94,17 @@ struct ReuseSearch<'a> {
     kopts: &'a KeyframeOptions,
 }
 
+/// A keyframe the frame was matched to in a [`ReuseSearch`].
+struct ReuseCandidate {
+    /// The keyframe's position.
+    pos: usize,
+    /// The frame's matches to it.
+    matches: Vec<Match>,
+    /// The frame's flow to it; `None` when the matches are too few to track
+    /// it safely ([`ReuseSearch::flow`]).
+    flow: Option<f64>,
+}
+
 impl ReuseSearch<'_> {
     /// The flow of the frame to the keyframe at position `k` over the
     /// frame's matches `ms` to it; `None` when the matches are too few to
@@ -107,17 +118,11 @@ impl ReuseSearch<'_> {
         Ok(Some(flow_score(&self.data.features.keypoints, kps, ms, fx, fy)?.score))
     }
 
-    /// True when one of `candidates` (keyframe positions, `matched` the
-    /// frame's matches to each) covers the view: tracked safely at a flow
-    /// at most the keyframe threshold, so the frame is no keyframe candidate
-    /// against it.
-    fn covers(&self, candidates: &[usize], matched: &[Vec<Match>]) -> Result<bool, SlamError> {
-        for (&k, ms) in candidates.iter().zip(matched) {
-            if self.flow(k, ms)?.is_some_and(|f| f <= self.kopts.flow_threshold) {
-                return Ok(true);
-            }
-        }
-        Ok(false)
+    /// True when a keyframe at this flow covers the view: tracked safely at
+    /// a flow at most the keyframe threshold, so the frame is no keyframe
+    /// candidate against it.
+    fn covers(&self, flow: Option<f64>) -> bool {
+        flow.is_some_and(|f| f <= self.kopts.flow_threshold)
     }
 
     /// Index in `candidates` of the reference: among the keyframes the
@@ -125,72 +130,68 @@ impl ReuseSearch<'_> {
     /// view, so the flow test asks whether any keyframe near the view
     /// exists; when none is safe, the one whose 3D points it matches most.
     /// Ties: the earlier candidate (the current reference first).
-    fn choose(&self, candidates: &[usize], matched: &[Vec<Match>]) -> Result<usize, SlamError> {
+    fn choose(&self, candidates: &[ReuseCandidate]) -> usize {
         let mut nearest: Option<(usize, f64)> = None;
-        for (i, (&k, ms)) in candidates.iter().zip(matched).enumerate() {
-            if let Some(flow) = self.flow(k, ms)?
+        for (i, c) in candidates.iter().enumerate() {
+            if let Some(flow) = c.flow
                 && nearest.is_none_or(|(_, f)| flow < f)
             {
                 nearest = Some((i, flow));
             }
         }
         if let Some((i, _)) = nearest {
-            return Ok(i);
+            return i;
         }
-        let scores: Vec<usize> =
-            candidates.iter().zip(matched).map(|(&k, ms)| map_points_matched(self.map, k, ms)).collect();
-        Ok((0..scores.len()).fold(0, |b, i| if scores[i] > scores[b] { i } else { b }))
+        let scores: Vec<usize> = candidates.iter().map(|c| map_points_matched(self.map, c.pos, &c.matches)).collect();
+        (0..scores.len()).fold(0, |b, i| if scores[i] > scores[b] { i } else { b })
     }
 
-    /// The keyframes a frame that its reference at position `current` no
-    /// longer covers (`first`, its matches to it) is matched to, with the
-    /// matches: the reference's `n` most covisible keyframes in batches of
+    /// The keyframes a frame that its reference `current` (a candidate
+    /// that does not cover the view) no longer covers is matched to: the
+    /// reference's `n` most covisible keyframes in batches of
     /// [`REUSE_BATCH`], most covisible first, the newest keyframe with the
-    /// first batch. The search stops at the first batch holding a keyframe
-    /// that covers the view, so a wide search (a revisit through a gap that
-    /// culling left) costs one batch where the nearest covisible keyframes
-    /// already cover the frame. When no batch covers it, the frame is a
-    /// keyframe candidate and only the first batch is returned: keyframes
-    /// less covisible with the reference are a reference only when they
-    /// cover the view (as a registration reference they made TUM fr1/rpy
-    /// drift on some seeds, docs/benchmarks.md).
+    /// first batch, after `current` itself. The search stops at the first
+    /// batch holding a keyframe that covers the view, so a wide search (a
+    /// revisit through a gap that culling left) costs one batch where the
+    /// nearest covisible keyframes already cover the frame. When no batch
+    /// covers it, the frame is a keyframe candidate and only the first
+    /// batch is returned: keyframes less covisible with the reference are a
+    /// reference only when they cover the view (as a registration reference
+    /// they made TUM fr1/rpy drift on some seeds, docs/benchmarks.md).
     fn candidates(
         &self,
         frontend: &Frontend,
-        current: usize,
-        first: Vec<Match>,
+        current: ReuseCandidate,
         n: usize,
         timings: &mut StageTimings,
-    ) -> Result<(Vec<usize>, Vec<Vec<Match>>), SlamError> {
+    ) -> Result<Vec<ReuseCandidate>, SlamError> {
         let newest = self.map.keyframes().len() - 1;
-        let covisible = self.map.covisible_keyframes(current, n);
+        let covisible = self.map.covisible_keyframes(current.pos, n);
         let mut batches = covisible.chunks(REUSE_BATCH).map(<[usize]>::to_vec).collect::<Vec<_>>();
         match batches.first_mut() {
             Some(b) => b.push(newest),
             None => batches.push(vec![newest]),
         }
-        let (mut candidates, mut matched) = (vec![current], vec![first]);
         // Keeps the first of each: the current reference wins ties.
-        let mut seen = HashSet::from([current]);
+        let mut seen = HashSet::from([current.pos]);
+        let mut candidates = vec![current];
         let mut first_batch = None;
         for mut batch in batches {
             batch.retain(|k| seen.insert(*k));
-            let more: Result<Vec<Vec<Match>>, SlamError> = timings.time(Stage::Matching, || {
+            let matched: Result<Vec<Vec<Match>>, SlamError> = timings.time(Stage::Matching, || {
                 batch.par_iter().map(|&k| frontend.match_frames(self.data, &self.map.keyframes()[k].data)).collect()
             });
-            let more = more?;
-            let covered = self.covers(&batch, &more)?;
-            candidates.extend(batch);
-            matched.extend(more);
-            if covered {
-                return Ok((candidates, matched));
+            for (pos, matches) in batch.into_iter().zip(matched?) {
+                let flow = self.flow(pos, &matches)?;
+                candidates.push(ReuseCandidate { pos, matches, flow });
+            }
+            if candidates.iter().any(|c| self.covers(c.flow)) {
+                return Ok(candidates);
             }
             first_batch.get_or_insert(candidates.len());
         }
-        let keep = first_batch.unwrap_or(candidates.len());
-        candidates.truncate(keep);
-        matched.truncate(keep);
-        Ok((candidates, matched))
+        candidates.truncate(first_batch.unwrap_or(candidates.len()));
+        Ok(candidates)
     }
 }
 
@@ -752,24 +753,26 @@ impl Slam {
         let reuse = n > 0 && !t.backward;
         let camera = map.camera().unwrap_or(&self.camera);
         let search = ReuseSearch { map, data, camera, kopts: &self.opts.keyframes };
-        let covers = reuse && search.covers(&[current], std::slice::from_ref(&first))?;
-        if !reuse || covers {
+        // The flow is computed only under reuse: without it the frame is
+        // matched to its reference and nothing else.
+        let flow = if reuse { search.flow(current, &first)? } else { None };
+        if !reuse || search.covers(flow) {
             t.reference = reuse.then(|| map.keyframes()[current].image_id);
             return Ok(Some((current, first)));
         }
-        let (candidates, matched) = search.candidates(frontend, current, first, n, &mut self.timings)?;
-        let best = search.choose(&candidates, &matched)?;
-        let pos = candidates[best];
+        let start = ReuseCandidate { pos: current, matches: first, flow };
+        let mut candidates = search.candidates(frontend, start, n, &mut self.timings)?;
+        let best = search.choose(&candidates);
+        let (count, chosen) = (candidates.len(), candidates.swap_remove(best));
         tracing::debug!(
-            "frame {}: reference keyframe {} (candidate {best} of {}, {} matches) instead of {}",
+            "frame {}: reference keyframe {} (candidate {best} of {count}, {} matches) instead of {}",
             data.index(),
-            map.keyframes()[pos].image_id.0,
-            candidates.len(),
-            matched.get(best).map_or(0, Vec::len),
+            map.keyframes()[chosen.pos].image_id.0,
+            chosen.matches.len(),
             map.keyframes()[current].image_id.0
         );
-        t.reference = Some(map.keyframes()[pos].image_id);
-        Ok(matched.into_iter().nth(best).map(|ms| (pos, ms)))
+        t.reference = Some(map.keyframes()[chosen.pos].image_id);
+        Ok(Some((chosen.pos, chosen.matches)))
     }
 
     /// Makes the previous frame a keyframe (tracking is about to be lost);

@@ -47,9 +47,9 @@ pub fn summary(r: &RunReport) -> String {
     s.push_str(&format!("points per image  {:>8.1}\n", r.points_per_image));
     s.push_str(&format!("wall time         {:>8.2} s  ({:.1} ms/frame)\n", r.wall_time_s, r.ms_per_frame));
     s.push_str(&format!(
-        "stages (s)        decode {:.2}, features {:.2}, matching {:.2}, keyframe test {:.2}, init {:.2},\n                  registration {:.2}, triangulation {:.2}, local BA {:.2}, global BA {:.2}, localisation {:.2}, output {:.2}",
+        "stages (s)        decode {:.2}, features {:.2}, matching {:.2}, keyframe test {:.2}, init {:.2},\n                  registration {:.2}, triangulation {:.2}, local BA {:.2}, global BA {:.2},\n                  loop closure {:.2}, observation refinement {:.2}, localisation {:.2}, output {:.2}",
         t.decode, t.features, t.matching, t.keyframe_test, t.initialization, t.registration, t.triangulation, t.local_ba,
-        t.global_ba, t.localization, t.output
+        t.global_ba, t.loop_closure, t.observation_refinement, t.localization, t.output
     ));
     for n in &r.notes {
         s.push_str(&format!("\nnote: {n}"));

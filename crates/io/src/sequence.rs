@@ -245,6 +245,13 @@ impl Iterator for ImageSequence {
         Some(Ok(Frame { index, source_index: e.source_index, timestamp: e.timestamp, name, image }))
     }
 
+    /// Skips `n` frames without reading their files (a second pass over
+    /// the sequence reads only the frames it needs).
+    fn nth(&mut self, n: usize) -> Option<Self::Item> {
+        self.cursor = self.cursor.saturating_add(n).min(self.entries.len());
+        self.next()
+    }
+
     fn size_hint(&self) -> (usize, Option<usize>) {
         let left = self.entries.len().saturating_sub(self.cursor);
         (left, Some(left))

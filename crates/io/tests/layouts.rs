@@ -248,3 +248,24 @@ fn kitti_colour_folder_and_count_mismatch() {
     let e = open_source(d, &SourceOptions::default()).err().unwrap().to_string();
     assert!(e.contains("times.txt") && e.contains("2 timestamps") && e.contains("3 images"), "{e}");
 }
+
+#[test]
+fn skipping_frames_reads_only_the_frames_asked_for() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    for i in 0..6u8 {
+        png(&d.join(format!("frame{i}.png")), i);
+    }
+    // A file that cannot be decoded is skipped over without being read.
+    std::fs::write(d.join("frame1.png"), b"not a png").unwrap();
+    let mut src = open_source(d, &SourceOptions::default()).unwrap();
+    let third = src.nth(2).unwrap().unwrap();
+    assert_eq!((third.index, third.image.get(0, 0, 0)), (2, 2));
+    let fifth = src.nth(1).unwrap().unwrap();
+    assert_eq!((fifth.index, fifth.image.get(0, 0, 0)), (4, 4));
+    assert!(src.nth(5).is_none(), "past the end");
+    assert!(src.next().is_none());
+    // The broken file is still reported when it is asked for.
+    let mut src = open_source(d, &SourceOptions::default()).unwrap();
+    assert!(src.nth(1).unwrap().is_err());
+}

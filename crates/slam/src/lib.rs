@@ -35,6 +35,7 @@ pub mod keyframe;
 pub mod mapper;
 pub mod options;
 pub mod output;
+pub mod patch;
 pub mod pipeline;
 pub mod records;
 pub mod run;
@@ -47,6 +48,7 @@ pub use export::{
     export_scene_with,
 };
 pub use frame::{FrameData, FrameId, FramePose, FrameRecord};
+pub use mapper::observations::{FrameImages, ObservationRefinement};
 pub use mapper::rolling_shutter;
 pub use options::{FeatureKind, MatcherKind, RollingShutter, SlamOptions};
 pub use output::{

@@ -539,6 +539,18 @@ pub struct RefineOptions {
     /// COLMAP registers every image; the model then holds every frame.
     #[cfg_attr(feature = "cli", arg(long))]
     pub refine_all_frames: bool,
+    /// Align each track's observations to its reference patch, then adjust.
+    ///
+    /// The keypoints of a track are detected independently and disagree by the detector's noise; aligning their neighbourhoods makes them agree to a fraction of a pixel (in the spirit of Pixel-Perfect SfM). The keyframes are read again from the input. Skipped with a rolling-shutter readout (`--rolling-shutter`): the warp between two images assumes each was taken at one instant.
+    ///
+    /// Off by default: with `--robust-final-ba` it takes the Strecha sets' median ATE to about a third (entry) to two thirds (fountain, herzjesu, castle) and the synthetic keyframes' to a third, but a forward drive (KITTI odometry) drifts more (docs/benchmarks.md, "Observation refinement").
+    #[cfg_attr(feature = "cli", arg(long, value_name = "BOOL", default_value_t = RefineOptions::default().refine_observations, action = clap::ArgAction::Set))]
+    pub refine_observations: bool,
+    /// Cauchy loss in the final BAs, at the map's median reprojection error.
+    ///
+    /// The filter keeps observations up to 4 px off, and under a squared loss the few mismatches among them move the poses along the map's weak directions; a Cauchy loss at the map's own error level lets them count less (docs/benchmarks.md, "Observation refinement"). Without it, the final bundle adjustments use the squared loss, as COLMAP's global BA. Off by default: a forward drive (KITTI odometry) drifts slightly more with it.
+    #[cfg_attr(feature = "cli", arg(long, value_name = "BOOL", default_value_t = RefineOptions::default().robust_final_ba, action = clap::ArgAction::Set))]
+    pub robust_final_ba: bool,
     /// At the end, match each keyframe with up to N overlapping keyframes it was never matched with (0: off).
     ///
     /// The final poses say which pairs see the same points (a path that comes back, photos around a building); their verified matches join and lengthen the tracks before the final bundle adjustment.
@@ -571,6 +583,8 @@ impl Default for RefineOptions {
             robust_intrinsics: true,
             localize_all_frames: true,
             refine_all_frames: false,
+            refine_observations: false,
+            robust_final_ba: false,
             match_overlapping: 0,
             rolling_shutter: RollingShutter::Seconds(0.0),
             record_memory: RECORD_MEMORY_MIB,

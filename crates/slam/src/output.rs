@@ -87,6 +87,10 @@ pub struct RunReport {
     /// Keyframe candidates refused for too little rotation-compensated flow
     /// (`--parallax-threshold`).
     pub refused_parallax: usize,
+    /// Keyframe observations moved by the observation refinement
+    /// (`--refine-observations`).
+    #[serde(default)]
+    pub refined_observations: usize,
     /// Notable events.
     pub notes: Vec<String>,
     /// Per-stage wall times, seconds.
@@ -320,6 +324,7 @@ pub fn write_outputs(
         culled_keyframes: result.maps.iter().map(|m| m.map.culled_keyframes()).sum(),
         loops: result.maps.iter().flat_map(|m| m.map.loops().iter().cloned()).collect(),
         refused_parallax: result.stats.refused_parallax,
+        refined_observations: result.stats.refined_observations,
         notes: result.stats.notes.clone(),
         timings_s: result.timings.clone(),
         wall_time_s: 0.0,

@@ -11,6 +11,7 @@ use crate::frame::{FrameData, FrameId, FramePose, FrameRecord};
 use crate::frontend::Frontend;
 use crate::keyframe::{ForceKeyframe, keyframe_decision, rotation_compensated_flow};
 use crate::mapper::init::{PairMatches, two_view};
+use crate::mapper::observations::FrameImages;
 use crate::mapper::{Mapper, RegisterFailure, Registration};
 use crate::options::{GlobalBaTolerance, KEYFRAME_TWO_VIEW_TRIALS};
 use crate::options::{KeyframeOptions, SlamOptions};
@@ -261,6 +262,8 @@ pub struct RunStats {
     /// Keyframe candidates refused for too little rotation-compensated flow
     /// (`--parallax-threshold`); tracked as non-keyframes, never counted as lost.
     pub refused_parallax: usize,
+    /// Keyframe observations moved by `--refine-observations`, over all maps.
+    pub refined_observations: usize,
 }
 
 /// Everything a run produced.
@@ -357,6 +360,9 @@ pub struct Slam {
     /// Set by an interruption (Ctrl-C): [`Slam::finish`] stops between its
     /// stages with [`SlamError::Cancelled`].
     interrupt: Option<Arc<std::sync::atomic::AtomicBool>>,
+    /// Reads keyframes again for `--refine-observations` (none: that
+    /// refinement is skipped).
+    images: Option<Box<dyn FrameImages + Send>>,
 }
 
 impl std::fmt::Debug for Slam {
@@ -390,7 +396,16 @@ impl Slam {
             stats: RunStats::default(),
             spill,
             interrupt: None,
+            images: None,
         })
+    }
+
+    /// How the frames can be read again after mapping, for the refinements
+    /// that look at the pixels (`--refine-observations`); without it they
+    /// are skipped.
+    pub fn with_frame_images(mut self, images: Box<dyn FrameImages + Send>) -> Self {
+        self.images = Some(images);
+        self
     }
 
     /// Records spill to a file named `prefix` + `PID-N` in `dir` (the
@@ -930,6 +945,26 @@ impl Slam {
                 map.match_overlapping_pairs(&self.frontend, &self.opts, &mut self.timings)?;
             }
             map.finalize(&self.opts, &mut self.timings)?;
+            // The plane warp between two images assumes each is taken at
+            // one instant: with a rolling shutter compensated, the refined
+            // observations made TUM less accurate (docs/benchmarks.md).
+            if self.opts.refine.refine_observations
+                && !self.opts.refine.rolling_shutter.is_on()
+                && self.images.is_some()
+            {
+                self.check_interrupt()?;
+                if let Some(images) = self.images.as_deref_mut() {
+                    let r = map.refine_observations(images, &self.opts, &mut self.timings)?;
+                    self.stats.refined_observations += r.moved;
+                    if let Some(first) = r.first_unread {
+                        self.stats.notes.push(format!(
+                            "map {}: {} keyframes could not be read again for the observation refinement and kept their keypoints (first: {first})",
+                            map.index(),
+                            r.unread
+                        ));
+                    }
+                }
+            }
         }
         let kept = self.merge_maps(finished)?;
         let mut maps = Vec::new();

@@ -507,7 +507,9 @@ pub fn run(config: &RunConfig, events: EventSink, mut hooks: RunHooks<'_>) -> Re
     }
     // Records beyond the memory budget spill beside the output: the file
     // system the user chose for it, cleaned up with its staging folder.
-    let mut slam = Slam::new(slam_opts.clone(), &resolved.camera, events)?.with_spill(output.scratch_prefix());
+    let mut slam = Slam::new(slam_opts.clone(), &resolved.camera, events)?
+        .with_spill(output.scratch_prefix())
+        .with_frame_images(Box::new(SourceImages { input: config.input.clone(), options: opts.source() }));
     if let Some(flag) = &hooks.interrupt {
         slam.set_interrupt(flag.clone());
     }
@@ -538,6 +540,42 @@ pub fn run(config: &RunConfig, events: EventSink, mut hooks: RunHooks<'_>) -> Re
         RunEnd { options: &slam_opts, stopped_after, camera_source: resolved.source.clone(), focal_start, started };
     let report = publish(output, config, &end, &mut result)?;
     Ok(RunOutput { report, result })
+}
+
+/// The run's input opened again for a second pass over chosen frames
+/// (`--refine-observations`): an image folder reads only those files, a
+/// video is decoded again up to the last.
+struct SourceImages {
+    input: PathBuf,
+    options: SourceOptions,
+}
+
+impl crate::FrameImages for SourceImages {
+    fn read(
+        &mut self,
+        frames: &[usize],
+        visit: &mut dyn FnMut(usize, Result<colslam_image::Image, String>),
+    ) -> Result<(), SlamError> {
+        let mut source = open_source(&self.input, &self.options)?;
+        // The index of the frame the source yields next.
+        let mut next = 0;
+        for &want in frames {
+            let Some(skip) = want.checked_sub(next) else {
+                visit(want, Err("frames were asked out of order".into()));
+                continue;
+            };
+            next = want + 1;
+            match source.nth(skip) {
+                None => visit(want, Err("the input ended before it".into())),
+                Some(Err(e)) => visit(want, Err(crate::error::error_chain(&e))),
+                Some(Ok(f)) if f.index != want => {
+                    visit(want, Err(format!("the input gave frame {} in its place", f.index)))
+                }
+                Some(Ok(f)) => visit(want, Ok(f.image)),
+            }
+        }
+        Ok(())
+    }
 }
 
 /// Without calibration (a guessed focal length) and with

@@ -30,6 +30,10 @@ pub enum Stage {
     /// (`--loop-closure`; its matching, triangulation and global BA count in
     /// their own stages).
     LoopClosure,
+    /// Refinement of the keyframes' observations by patch alignment
+    /// (`--refine-observations`; reading the frames again counts here, its
+    /// bundle adjustment in [`Stage::GlobalBa`]).
+    ObservationRefinement,
     /// Localisation of non-keyframes.
     Localization,
     /// Writing the outputs.
@@ -59,6 +63,8 @@ pub struct StageTimings {
     pub global_ba: f64,
     /// [`Stage::LoopClosure`].
     pub loop_closure: f64,
+    /// [`Stage::ObservationRefinement`].
+    pub observation_refinement: f64,
     /// [`Stage::Localization`].
     pub localization: f64,
     /// [`Stage::Output`].
@@ -80,6 +86,7 @@ impl StageTimings {
             Stage::LocalBa => &mut self.local_ba,
             Stage::GlobalBa => &mut self.global_ba,
             Stage::LoopClosure => &mut self.loop_closure,
+            Stage::ObservationRefinement => &mut self.observation_refinement,
             Stage::Localization => &mut self.localization,
             Stage::Output => &mut self.output,
         };
@@ -105,6 +112,8 @@ impl StageTimings {
             + self.triangulation
             + self.local_ba
             + self.global_ba
+            + self.loop_closure
+            + self.observation_refinement
             + self.localization
             + self.output
     }

@@ -16,6 +16,9 @@
 //! - [`Mapper::merge`] (`merge.rs`): joining a second map;
 //! - [`Mapper::match_overlapping_pairs`] (`overlap.rs`): matching the
 //!   keyframe pairs whose views overlap but were never matched, at the end;
+//! - [`Mapper::refine_observations`] (`observations.rs`,
+//!   `--refine-observations`): the keyframes' observations moved by patch
+//!   alignment to their track's reference, at the end;
 //! - rolling-shutter compensation (`rolling_shutter.rs`);
 //! - [`Mapper::close_loop`] (`loop_closure.rs`, `--loop-closure`): loop
 //!   detection by appearance after a keyframe, Sim(3) verification and
@@ -27,6 +30,7 @@ mod local_map;
 mod localize;
 mod loop_closure;
 mod merge;
+pub mod observations;
 mod overlap;
 mod probe;
 mod register;

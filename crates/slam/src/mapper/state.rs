@@ -63,6 +63,9 @@ pub struct Mapper {
     /// Place recognition and the loops closed (`--loop-closure`,
     /// `loop_closure.rs`).
     pub(super) loops: super::loop_closure::LoopState,
+    /// Set once mapping ended ([`Self::finalize`]): the global BAs from
+    /// then on are the final ones (`--robust-final-ba`).
+    pub(super) mapping_ended: bool,
 }
 
 /// Relative change of the focal length in a global BA under which it has
@@ -70,6 +73,15 @@ pub struct Mapper {
 /// the residuals a focal length far off causes at the image borders would
 /// be taken for outliers and hold it there.
 const FOCAL_SETTLED: f64 = 0.01;
+
+/// Scale of the Cauchy loss of the final bundle adjustments
+/// (`--robust-final-ba`), in units of the map's median point reprojection
+/// error: at the error level itself most observations keep nearly their
+/// full weight and the few off by several times it count little. Measured:
+/// 1x against 2x and a fixed 1 px (docs/benchmarks.md, "Observation
+/// refinement"); TUM's rolling-shutter residuals (median 1.2 px) lost
+/// accuracy at the fixed pixel.
+pub const FINAL_BA_LOSS_SCALE: f64 = 1.0;
 
 /// Keyframes a map needs before a radial distortion term is tried on its
 /// camera ([`Mapper::try_radial_distortion`]): fewer keep too few
@@ -123,6 +135,7 @@ impl Mapper {
             intrinsics_version: 0,
             culled: 0,
             loops: Default::default(),
+            mapping_ended: false,
         }
     }
 
@@ -303,7 +316,15 @@ impl Mapper {
         opts: &SlamOptions,
         timings: &mut StageTimings,
     ) -> Result<colslam_optim::BaReport, SfmError> {
-        let ba = opts.global_ba(tolerance, self.focal_step < FOCAL_SETTLED);
+        let mut ba = opts.global_ba(tolerance, self.focal_step < FOCAL_SETTLED);
+        if opts.refine.robust_final_ba
+            && self.mapping_ended
+            && tolerance == GlobalBaTolerance::Converged
+            && ba.ba.loss == colslam_optim::LossFunction::Trivial
+            && let Some(scale) = self.median_point_error()?
+        {
+            ba.ba.loss = colslam_optim::LossFunction::Cauchy(FINAL_BA_LOSS_SCALE * scale);
+        }
         let refine = opts.refine.refine_intrinsics;
         self.log_global_probe("before");
         let before = self.focal()?;
@@ -330,6 +351,15 @@ impl Mapper {
         Ok(report)
     }
 
+    /// The median over the points of their mean reprojection error, pixels
+    /// (`None` without points): the map's own error level, which scales the
+    /// final bundle adjustments' robust loss.
+    fn median_point_error(&mut self) -> Result<Option<f64>, SceneError> {
+        self.rec.update_point_errors()?;
+        let mut errors: Vec<f64> = self.rec.points3d().map(|(_, p)| p.error).filter(|e| *e > 0.0).collect();
+        Ok(colslam_geometry::stats::median_in_place(&mut errors))
+    }
+
     /// True when registered keyframes or points grew by
     /// `global_ba_growth` since the last global refinement (COLMAP's
     /// schedule).
@@ -344,6 +374,7 @@ impl Mapper {
     /// rolling-shutter compensation to follow, only to the periodic
     /// tolerance (the compensation ends with its own converged BA).
     pub fn finalize(&mut self, opts: &SlamOptions, timings: &mut StageTimings) -> Result<(), SfmError> {
+        self.mapping_ended = true;
         if self.rec.num_registered_images() >= 2 {
             let tolerance = if opts.refine.rolling_shutter.is_on() {
                 GlobalBaTolerance::Periodic

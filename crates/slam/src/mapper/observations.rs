@@ -1,0 +1,296 @@
+//! Refinement of the keyframes' observations by patch alignment, after
+//! mapping (issue 14, item 3; `--refine-observations`).
+//!
+//! Each keypoint was detected independently in its image, so the
+//! observations of one track disagree by the detector's noise (integer
+//! positions at their pyramid level: about 0.8 px median on the synthetic
+//! sequence, docs/benchmarks.md). Here every track takes one reference
+//! observation (the middle one in frame order), and each other observation
+//! is moved to where the reference's neighbourhood appears in its image:
+//! the template is the reference patch, warped by the homography of the
+//! plane through the point facing the reference camera (an affine map at
+//! the point), aligned by Gauss-Newton on the smoothed intensities
+//! ([`crate::patch`]). Then the map is bundle adjusted again.
+//!
+//! What an observation is aligned to: the warp is anchored at the point's
+//! projection, not at the reference keypoint, so every other observation
+//! moves to the surface point at the point's projection in the reference
+//! image (the map's consensus from all observations), while the reference
+//! keeps its own keypoint. Anchoring at the reference keypoint, or moving
+//! the reference to the projection too, both came out less accurate on the
+//! synthetic sequence and Strecha (docs/history.md).
+//!
+//! The images are read again from the source ([`FrameImages`]), one at a
+//! time, in two passes (the templates, then the alignments), so a long
+//! video is never held in memory; a frame that cannot be read again is
+//! skipped with a warning and its observations keep their keypoints.
+
+use super::state::Mapper;
+use crate::error::SlamError;
+use crate::frame::undistort;
+use crate::options::{GlobalBaTolerance, SlamOptions};
+use crate::patch::{GradientImage, PATCH_HALF, Template};
+use crate::timing::{Stage, StageTimings};
+use colslam_camera::Camera;
+use colslam_geometry::nalgebra::Matrix2;
+use colslam_geometry::{Rigid3, Vec2, Vec3};
+use colslam_image::Image;
+use colslam_scene::{ImageId, Point3DId};
+use rayon::prelude::*;
+use std::collections::{BTreeMap, BTreeSet, HashMap};
+
+/// Reads frames of the input again after mapping, for the refinements that
+/// look at the pixels.
+pub trait FrameImages {
+    /// Calls `visit` once for each frame of `frames` (indices after skip,
+    /// ascending) with its image, or the reason it could not be read. An
+    /// error means no frame could be read at all (the source cannot be
+    /// opened again).
+    fn read(&mut self, frames: &[usize], visit: &mut dyn FnMut(usize, Result<Image, String>)) -> Result<(), SlamError>;
+}
+
+/// Farthest an observation may move, pixels: the keypoint's own error is
+/// under a pixel at the levels that carry most tracks; a larger move is
+/// another structure, or an alignment that slid along an edge.
+pub const MAX_SHIFT_PX: f64 = 2.0;
+/// Least normalised cross-correlation of an aligned patch with its
+/// template: below it the appearance changed too much (occlusion, a
+/// specular surface, a plane far from the fronto-parallel guess) for the
+/// position to be trusted. 0.7, 0.8 and 0.9 gave the same Strecha and
+/// synthetic-room figures; the synthetic drive was best at 0.7
+/// (docs/benchmarks.md).
+pub const MIN_ZNCC: f64 = 0.7;
+
+/// Bytes of gray images the first pass keeps for the second: a sequence of
+/// up to about 400 keyframes at 640x480 is read once, a longer one reads
+/// the rest again.
+const KEPT_IMAGE_BYTES: usize = 128 << 20;
+
+/// What [`Mapper::refine_observations`] did.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct ObservationRefinement {
+    /// Tracks whose reference patch could serve as a template.
+    pub tracks: usize,
+    /// Observations aligned against their track's template.
+    pub tried: usize,
+    /// Observations moved.
+    pub moved: usize,
+    /// Median distance moved, pixels.
+    pub median_shift_px: f64,
+    /// Frames that could not be read again.
+    pub unread: usize,
+    /// The first of them, its name and why.
+    pub first_unread: Option<String>,
+}
+
+/// One observation to align: its image, keypoint index, position and its
+/// track's reference.
+struct Target {
+    point: Point3DId,
+    point2d: u32,
+    xy: Vec2,
+}
+
+impl Mapper {
+    /// Refines the keyframes' observations by patch alignment (the module
+    /// documentation), then bundle adjusts the map again (converged, or to
+    /// the periodic tolerance when a rolling-shutter compensation follows).
+    pub fn refine_observations(
+        &mut self,
+        images: &mut dyn FrameImages,
+        opts: &SlamOptions,
+        timings: &mut StageTimings,
+    ) -> Result<ObservationRefinement, SlamError> {
+        let report = timings.time(Stage::ObservationRefinement, || self.align_observations(images))?;
+        if report.moved == 0 {
+            return Ok(report);
+        }
+        let tolerance = if opts.refine.rolling_shutter.is_on() {
+            GlobalBaTolerance::Periodic
+        } else {
+            GlobalBaTolerance::Converged
+        };
+        self.global_refine(tolerance, opts, timings)?;
+        self.rec.update_point_errors()?;
+        Ok(report)
+    }
+
+    /// The alignment itself: moves observations, no bundle adjustment.
+    fn align_observations(&mut self, images: &mut dyn FrameImages) -> Result<ObservationRefinement, SlamError> {
+        let camera = self.camera()?.clone();
+        // Registered keyframes: image id -> (slot, frame index).
+        let slot: HashMap<ImageId, (usize, usize)> = self
+            .keyframes
+            .iter()
+            .enumerate()
+            .filter(|(_, k)| self.rec.image(k.image_id).is_some_and(|i| i.registered))
+            .map(|(s, k)| (k.image_id, (s, k.data.index())))
+            .collect();
+        let frame_of = |id: &ImageId| slot.get(id).map(|s| s.1);
+        // Each track's reference: the middle observation in frame order.
+        let mut references: BTreeMap<usize, Vec<(Point3DId, Vec2)>> = BTreeMap::new();
+        let mut reference_of: HashMap<Point3DId, ImageId> = HashMap::new();
+        for (pid, p) in self.rec.points3d() {
+            let mut els: Vec<_> = p.track.iter().filter_map(|e| frame_of(&e.image_id).map(|f| (f, e))).collect();
+            if els.len() < 2 {
+                continue;
+            }
+            els.sort_by_key(|(f, e)| (*f, e.point2d_idx));
+            let (frame, el) = els[els.len() / 2];
+            let Some(xy) = self.rec.image(el.image_id).and_then(|i| i.points2d.get(el.point2d_idx as usize)) else {
+                continue;
+            };
+            references.entry(frame).or_default().push((pid, xy.xy));
+            reference_of.insert(pid, el.image_id);
+        }
+        let names: HashMap<usize, &str> =
+            self.keyframes.iter().map(|k| (k.data.index(), k.data.id.name.as_str())).collect();
+        // Every other observation of a track with a reference, by frame.
+        let mut targets: BTreeMap<usize, (ImageId, Vec<Target>)> = BTreeMap::new();
+        for (pid, p) in self.rec.points3d() {
+            let Some(reference) = reference_of.get(&pid) else { continue };
+            for el in p.track.iter().filter(|el| el.image_id != *reference) {
+                let Some(frame) = frame_of(&el.image_id) else { continue };
+                let Some(xy) = self.rec.image(el.image_id).and_then(|i| i.points2d.get(el.point2d_idx as usize)) else {
+                    continue;
+                };
+                let entry = targets.entry(frame).or_insert_with(|| (el.image_id, Vec::new()));
+                entry.1.push(Target { point: pid, point2d: el.point2d_idx, xy: xy.xy });
+            }
+        }
+        let mut unread: BTreeSet<usize> = BTreeSet::new();
+        let map_index = self.index;
+        let mut first_unread: Option<String> = None;
+        let mut warn = |unread: &mut BTreeSet<usize>, index: usize, why: &str| {
+            unread.insert(index);
+            first_unread
+                .get_or_insert_with(|| format!("frame {index} ({}): {why}", names.get(&index).copied().unwrap_or("?")));
+            tracing::warn!(
+                "map {}: frame {index} ({}) could not be read again for the observation refinement: {why}; its observations keep their keypoints",
+                map_index,
+                names.get(&index).copied().unwrap_or("?")
+            );
+        };
+        // Pass 1: the templates, at the reference keypoints. The gray
+        // images the second pass needs stay in memory within a budget, so a
+        // short sequence is read once.
+        let mut templates: HashMap<Point3DId, (Template, Vec2)> = HashMap::new();
+        let mut kept: BTreeMap<usize, Image> = BTreeMap::new();
+        let mut kept_bytes = 0usize;
+        let frames: Vec<usize> = references.keys().copied().collect();
+        images.read(&frames, &mut |index, image| match image {
+            Err(why) => warn(&mut unread, index, &why),
+            Ok(image) => {
+                let gray = image.to_gray();
+                let g = GradientImage::new(&gray);
+                for (pid, xy) in references.get(&index).into_iter().flatten() {
+                    if let Some(t) = g.template(xy) {
+                        templates.insert(*pid, (t, *xy));
+                    }
+                }
+                if targets.contains_key(&index) && kept_bytes + gray.data().len() <= KEPT_IMAGE_BYTES {
+                    kept_bytes += gray.data().len();
+                    kept.insert(index, gray);
+                }
+            }
+        })?;
+        // Pass 2: the alignments.
+        let poses: HashMap<ImageId, Rigid3> =
+            slot.keys().filter_map(|id| self.rec.image(*id).map(|i| (*id, i.cam_from_world))).collect();
+        let points: HashMap<Point3DId, Vec3> =
+            templates.keys().filter_map(|pid| self.rec.point3d(*pid).map(|p| (*pid, p.xyz))).collect();
+        let mut moves: Vec<(ImageId, u32, Vec2, f64)> = Vec::new();
+        let mut tried = 0usize;
+        let mut align_in = |index: usize, image: &Image| {
+            let Some((image_id, list)) = targets.get(&index) else { return };
+            let g = GradientImage::new(image);
+            let found: Vec<Option<(u32, Vec2, f64)>> = list
+                .par_iter()
+                .filter(|t| templates.contains_key(&t.point))
+                .map(|t| {
+                    let (template, ref_xy) = templates.get(&t.point)?;
+                    let ref_pose = poses.get(reference_of.get(&t.point)?)?;
+                    let (anchor, warp) =
+                        plane_warp(&camera, ref_pose, ref_xy, poses.get(image_id)?, points.get(&t.point)?)?;
+                    let a = g.align(template, &(t.xy + anchor), &warp, MAX_SHIFT_PX)?;
+                    (a.zncc >= MIN_ZNCC).then(|| (t.point2d, t.xy + a.shift, a.shift.norm()))
+                })
+                .collect();
+            tried += found.len();
+            moves.extend(found.into_iter().flatten().map(|(k, xy, d)| (*image_id, k, xy, d)));
+        };
+        let kept_frames: BTreeSet<usize> = kept.keys().copied().collect();
+        for (index, image) in std::mem::take(&mut kept) {
+            align_in(index, &image);
+        }
+        let frames: Vec<usize> =
+            targets.keys().filter(|f| !kept_frames.contains(f) && !unread.contains(f)).copied().collect();
+        images.read(&frames, &mut |index, image| match image {
+            Err(why) => warn(&mut unread, index, &why),
+            Ok(image) => align_in(index, &image),
+        })?;
+        let mut shifts = Vec::with_capacity(moves.len());
+        let mut moved = 0;
+        for (image_id, k, xy, d) in moves {
+            let Some(n) = undistort(&camera, &xy) else { continue };
+            let Some(&(s, _)) = slot.get(&image_id) else { continue };
+            let kf = &mut self.keyframes[s];
+            if let (Some(px), Some(nm)) = (kf.data.pixels.get_mut(k as usize), kf.data.normalized.get_mut(k as usize)) {
+                *px = xy;
+                *nm = n;
+                self.rec.set_point2d_xy(image_id, k, xy)?;
+                shifts.push(d);
+                moved += 1;
+            }
+        }
+        let median_shift_px = colslam_geometry::stats::median_in_place(&mut shifts).unwrap_or(0.0);
+        let unread = unread.len();
+        let report =
+            ObservationRefinement { tracks: templates.len(), tried, moved, median_shift_px, unread, first_unread };
+        tracing::info!(
+            "map {}: observations refined: {} of {} moved (median {:.2} px) over {} tracks{}",
+            self.index,
+            report.moved,
+            report.tried,
+            report.median_shift_px,
+            report.tracks,
+            if unread > 0 { format!(", {unread} frames unread") } else { String::new() }
+        );
+        Ok(report)
+    }
+}
+
+/// Where the reference patch around `ref_xy` lands in a target view, as an
+/// affine map at the point: the patch is taken to lie on the plane through
+/// `x` facing the reference camera (the fronto-parallel guess of patch-based
+/// multi-view stereo). Returns the offset of the reference keypoint's image
+/// from the point's projection in the target (the start of the search is
+/// the target observation plus this offset) and the 2x2 Jacobian of the
+/// map; `None` where a ray misses the plane or a point leaves the camera.
+fn plane_warp(
+    camera: &Camera,
+    ref_pose: &Rigid3,
+    ref_xy: &Vec2,
+    target_pose: &Rigid3,
+    x: &Vec3,
+) -> Option<(Vec2, Matrix2<f64>)> {
+    let centre = ref_pose.center();
+    let normal = (centre - x).try_normalize(1e-12)?;
+    let world_from_ref = ref_pose.inverse();
+    let on_plane = |px: &Vec2| -> Option<Vec2> {
+        let n = camera.cam_from_img(px)?;
+        let dir = world_from_ref.rotation * Vec3::new(n.x, n.y, 1.0);
+        let denom = dir.dot(&normal);
+        let lambda = (x - centre).dot(&normal) / denom;
+        if !(lambda.is_finite() && lambda > 0.0) {
+            return None;
+        }
+        camera.img_from_cam(&target_pose.transform_point(&(centre + lambda * dir)))
+    };
+    let projected = camera.img_from_cam(&target_pose.transform_point(x))?;
+    let h = f64::from(PATCH_HALF);
+    let c = on_plane(ref_xy)?;
+    let dx = (on_plane(&(ref_xy + Vec2::new(h, 0.0)))? - c) / h;
+    let dy = (on_plane(&(ref_xy + Vec2::new(0.0, h)))? - c) / h;
+    Some((c - projected, Matrix2::new(dx.x, dy.x, dx.y, dy.y)))
+}

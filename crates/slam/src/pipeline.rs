@@ -935,6 +935,11 @@ impl Slam {
             State::Tracking(t) => self.finished.push(t.map),
         }
         let mut finished = std::mem::take(&mut self.finished);
+        if self.opts.refine.refine_observations && self.opts.refine.rolling_shutter.is_on() {
+            let note = "observation refinement skipped: it assumes a global shutter, and a rolling-shutter readout is compensated";
+            tracing::warn!("{note}");
+            self.stats.notes.push(note.into());
+        }
         for map in &mut finished {
             self.check_interrupt()?;
             if self.opts.mapper.cull_keyframes {

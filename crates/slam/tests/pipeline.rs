@@ -623,7 +623,12 @@ fn a_frame_that_cannot_be_read_again_keeps_its_keypoints_and_the_run_finishes() 
     let note = r.stats.notes.iter().find(|n| n.contains("could not be read again")).expect("a note names the frames");
     assert!(note.contains(".png): the file is gone"), "{note}");
     // Nothing readable: nothing moves, and the run still ends with its map.
-    let (r, _, _) = run_with_images(&seq, &frames, on, (0..60).collect());
+    let (r, _, _) = run_with_images(&seq, &frames, on.clone(), (0..60).collect());
     assert_eq!(r.stats.refined_observations, 0);
     assert_eq!(r.maps[0].poses.len(), 60);
+    // Under a rolling-shutter compensation the refinement is skipped, and said so.
+    on.refine.rolling_shutter = colslam_slam::RollingShutter::Seconds(0.03);
+    let (r, _, _) = run_with_images(&seq, &frames, on, Vec::new());
+    assert_eq!(r.stats.refined_observations, 0);
+    assert!(r.stats.notes.iter().any(|n| n.contains("observation refinement skipped")), "{:?}", r.stats.notes);
 }

@@ -712,6 +712,13 @@ impl SlamOptions {
         ba
     }
 
+    /// How far the converging global BAs at the end of a map go: fully, or
+    /// only to the periodic tolerance when a rolling-shutter compensation
+    /// follows (it ends with its own converged BA).
+    pub fn final_ba_tolerance(&self) -> GlobalBaTolerance {
+        if self.refine.rolling_shutter.is_on() { GlobalBaTolerance::Periodic } else { GlobalBaTolerance::Converged }
+    }
+
     /// Checks every option; the error names the option as on the command
     /// line and says what is allowed.
     pub fn validate(&self) -> Result<(), SlamError> {

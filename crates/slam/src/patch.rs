@@ -1,6 +1,7 @@
 //! Photometric patch alignment for the refinement of track observations
-//! (issue 14, item 3): a smoothed gray image with its gradients, a patch of
-//! one observation's neighbourhood as the template, and the Gauss-Newton
+//! (issue 14, item 3): a smoothed gray image (with its gradients where a
+//! template is cut), a patch of one observation's neighbourhood as the
+//! template (its gradients carried along), and the Gauss-Newton
 //! search for the translation that best aligns it in another image under a
 //! fixed affine warp (Lucas-Kanade with a zero-mean, unit-variance
 //! normalisation, so a change of exposure does not move the result).
@@ -35,13 +36,20 @@ pub const MIN_TEMPLATE_STD: f64 = 1.0;
 const MAX_ITERATIONS: usize = 10;
 const CONVERGED: f64 = 1e-3;
 
-/// A gray image smoothed by [`SMOOTHING_SIGMA`], with its central-difference
-/// gradients; pixel `(i, j)` is the value at array coordinates `(i, j)`.
+/// A gray image smoothed by [`SMOOTHING_SIGMA`]; pixel `(i, j)` is the value
+/// at array coordinates `(i, j)`. What an alignment samples.
 #[derive(Debug, Clone)]
-pub struct GradientImage {
+pub struct SmoothImage {
     width: usize,
     height: usize,
     value: Vec<f32>,
+}
+
+/// A [`SmoothImage`] with its central-difference gradients: what a template
+/// is cut from.
+#[derive(Debug, Clone)]
+pub struct GradientImage {
+    smooth: SmoothImage,
     dx: Vec<f32>,
     dy: Vec<f32>,
 }
@@ -49,9 +57,8 @@ pub struct GradientImage {
 impl GradientImage {
     /// The smoothed gray version of `image` and its gradients.
     pub fn new(image: &Image) -> Self {
-        let gray = image.to_gray();
-        let (width, height) = (gray.width(), gray.height());
-        let value = gaussian_blur(gray.data(), width, height, SMOOTHING_SIGMA);
+        let smooth = SmoothImage::new(image);
+        let (width, height, value) = (smooth.width, smooth.height, &smooth.value);
         let mut dx = vec![0f32; value.len()];
         let mut dy = vec![0f32; value.len()];
         for y in 1..height.saturating_sub(1) {
@@ -61,43 +68,21 @@ impl GradientImage {
                 dy[i] = 0.5 * (value[i + width] - value[i - width]);
             }
         }
-        Self { width, height, value, dx, dy }
-    }
-
-    /// The top-left pixel of the bilinear cell holding array coordinates
-    /// `(x, y)` (as an index) and the fractions across it; `None` outside
-    /// the pixels whose gradients are defined.
-    fn cell(&self, x: f64, y: f64) -> Option<(usize, f64, f64)> {
-        let (w, h) = (self.width as f64, self.height as f64);
-        if !(x >= 1.0 && y >= 1.0 && x < w - 2.0 && y < h - 2.0) {
-            return None;
-        }
-        let (x0, y0) = (x.floor(), y.floor());
-        // In range: 1 <= x0 and x0 + 1 < width - 1 by the test above.
-        Some((y0 as usize * self.width + x0 as usize, x - x0, y - y0))
+        Self { smooth, dx, dy }
     }
 
     /// Bilinear value and gradient at array coordinates `(x, y)`.
     fn sample(&self, x: f64, y: f64) -> Option<[f64; 3]> {
-        let (i, fx, fy) = self.cell(x, y)?;
+        let (i, fx, fy) = self.smooth.cell(x, y)?;
+        let width = self.smooth.width;
         let (a, b, c, d) = ((1.0 - fx) * (1.0 - fy), fx * (1.0 - fy), (1.0 - fx) * fy, fx * fy);
         let lerp = |m: &[f32]| {
             a * f64::from(m[i])
                 + b * f64::from(m[i + 1])
-                + c * f64::from(m[i + self.width])
-                + d * f64::from(m[i + self.width + 1])
+                + c * f64::from(m[i + width])
+                + d * f64::from(m[i + width + 1])
         };
-        Some([lerp(&self.value), lerp(&self.dx), lerp(&self.dy)])
-    }
-
-    /// Bilinear value at array coordinates `(x, y)`.
-    fn value(&self, x: f64, y: f64) -> Option<f64> {
-        let (i, fx, fy) = self.cell(x, y)?;
-        let m = &self.value;
-        let top = f64::from(m[i]) + fx * (f64::from(m[i + 1]) - f64::from(m[i]));
-        let j = i + self.width;
-        let bottom = f64::from(m[j]) + fx * (f64::from(m[j + 1]) - f64::from(m[j]));
-        Some(top + fy * (bottom - top))
+        Some([lerp(&self.smooth.value), lerp(&self.dx), lerp(&self.dy)])
     }
 
     /// The patch around `center` (COLMAP pixel convention) as a template:
@@ -124,6 +109,39 @@ impl GradientImage {
             *g = [(f64::from(g[0]) / std) as f32, (f64::from(g[1]) / std) as f32];
         }
         Some(Template { values, gradients })
+    }
+}
+
+impl SmoothImage {
+    /// The smoothed gray version of `image`.
+    pub fn new(image: &Image) -> Self {
+        let gray = image.to_gray();
+        let (width, height) = (gray.width(), gray.height());
+        let value = gaussian_blur(gray.data(), width, height, SMOOTHING_SIGMA);
+        Self { width, height, value }
+    }
+
+    /// The top-left pixel of the bilinear cell holding array coordinates
+    /// `(x, y)` (as an index) and the fractions across it; `None` outside
+    /// the pixels whose gradients are defined.
+    fn cell(&self, x: f64, y: f64) -> Option<(usize, f64, f64)> {
+        let (w, h) = (self.width as f64, self.height as f64);
+        if !(x >= 1.0 && y >= 1.0 && x < w - 2.0 && y < h - 2.0) {
+            return None;
+        }
+        let (x0, y0) = (x.floor(), y.floor());
+        // In range: 1 <= x0 and x0 + 1 < width - 1 by the test above.
+        Some((y0 as usize * self.width + x0 as usize, x - x0, y - y0))
+    }
+
+    /// Bilinear value at array coordinates `(x, y)`.
+    fn value(&self, x: f64, y: f64) -> Option<f64> {
+        let (i, fx, fy) = self.cell(x, y)?;
+        let m = &self.value;
+        let top = f64::from(m[i]) + fx * (f64::from(m[i + 1]) - f64::from(m[i]));
+        let j = i + self.width;
+        let bottom = f64::from(m[j]) + fx * (f64::from(m[j + 1]) - f64::from(m[j]));
+        Some(top + fy * (bottom - top))
     }
 
     /// Aligns `template` in this image: the translation `s` that makes the
@@ -197,7 +215,7 @@ pub struct Template {
     gradients: [[f32; 2]; PATCH_LEN],
 }
 
-/// The result of [`GradientImage::align`].
+/// The result of [`SmoothImage::align`].
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Alignment {
     /// Translation from the start, pixels.
@@ -282,7 +300,7 @@ mod tests {
     #[test]
     fn a_shifted_image_is_found_to_a_tenth_of_a_pixel() {
         let a = GradientImage::new(&texture(64, 64, 0.0, 0.0));
-        let b = GradientImage::new(&texture(64, 64, 1.3, -0.7));
+        let b = SmoothImage::new(&texture(64, 64, 1.3, -0.7));
         let center = Vec2::new(32.5, 30.5);
         let t = a.template(&center).unwrap();
         let found = b.align(&t, &center, &Matrix2::identity(), 3.0).unwrap();

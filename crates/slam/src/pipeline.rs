@@ -935,7 +935,11 @@ impl Slam {
             State::Tracking(t) => self.finished.push(t.map),
         }
         let mut finished = std::mem::take(&mut self.finished);
-        if self.opts.refine.refine_observations && self.opts.refine.rolling_shutter.is_on() {
+        // The plane warp between two images assumes each is taken at one
+        // instant: with a rolling shutter compensated, the refined
+        // observations made TUM less accurate (docs/benchmarks.md).
+        let refine_observations = self.opts.refine.refine_observations && !self.opts.refine.rolling_shutter.is_on();
+        if self.opts.refine.refine_observations && !refine_observations {
             let note = "observation refinement skipped: it assumes a global shutter, and a rolling-shutter readout is compensated";
             tracing::warn!("{note}");
             self.stats.notes.push(note.into());
@@ -950,13 +954,7 @@ impl Slam {
                 map.match_overlapping_pairs(&self.frontend, &self.opts, &mut self.timings)?;
             }
             map.finalize(&self.opts, &mut self.timings)?;
-            // The plane warp between two images assumes each is taken at
-            // one instant: with a rolling shutter compensated, the refined
-            // observations made TUM less accurate (docs/benchmarks.md).
-            if self.opts.refine.refine_observations
-                && !self.opts.refine.rolling_shutter.is_on()
-                && self.images.is_some()
-            {
+            if refine_observations && self.images.is_some() {
                 self.check_interrupt()?;
                 if let Some(images) = self.images.as_deref_mut() {
                     let r = map.refine_observations(images, &self.opts, &mut self.timings)?;

@@ -28,8 +28,8 @@
 use super::state::Mapper;
 use crate::error::SlamError;
 use crate::frame::undistort;
-use crate::options::{GlobalBaTolerance, SlamOptions};
-use crate::patch::{GradientImage, PATCH_HALF, Template};
+use crate::options::SlamOptions;
+use crate::patch::{GradientImage, PATCH_HALF, SmoothImage, Template};
 use crate::timing::{Stage, StageTimings};
 use colslam_camera::Camera;
 use colslam_geometry::nalgebra::Matrix2;
@@ -105,12 +105,7 @@ impl Mapper {
         if report.moved == 0 {
             return Ok(report);
         }
-        let tolerance = if opts.refine.rolling_shutter.is_on() {
-            GlobalBaTolerance::Periodic
-        } else {
-            GlobalBaTolerance::Converged
-        };
-        self.global_refine(tolerance, opts, timings)?;
+        self.global_refine(opts.final_ba_tolerance(), opts, timings)?;
         self.rec.update_point_errors()?;
         Ok(report)
     }
@@ -163,13 +158,11 @@ impl Mapper {
         let mut first_unread: Option<String> = None;
         let mut warn = |unread: &mut BTreeSet<usize>, index: usize, why: &str| {
             unread.insert(index);
-            first_unread
-                .get_or_insert_with(|| format!("frame {index} ({}): {why}", names.get(&index).copied().unwrap_or("?")));
+            let frame = format!("frame {index} ({})", names.get(&index).copied().unwrap_or("?"));
             tracing::warn!(
-                "map {}: frame {index} ({}) could not be read again for the observation refinement: {why}; its observations keep their keypoints",
-                map_index,
-                names.get(&index).copied().unwrap_or("?")
+                "map {map_index}: {frame} could not be read again for the observation refinement: {why}; its observations keep their keypoints"
             );
+            first_unread.get_or_insert_with(|| format!("{frame}: {why}"));
         };
         // Pass 1: the templates, at the reference keypoints. The gray
         // images the second pass needs stay in memory within a budget, so a
@@ -203,7 +196,7 @@ impl Mapper {
         let mut tried = 0usize;
         let mut align_in = |index: usize, image: &Image| {
             let Some((image_id, list)) = targets.get(&index) else { return };
-            let g = GradientImage::new(image);
+            let g = SmoothImage::new(image);
             let found: Vec<Option<(u32, Vec2, f64)>> = list
                 .par_iter()
                 .filter(|t| templates.contains_key(&t.point))

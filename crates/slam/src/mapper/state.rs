@@ -376,12 +376,7 @@ impl Mapper {
     pub fn finalize(&mut self, opts: &SlamOptions, timings: &mut StageTimings) -> Result<(), SfmError> {
         self.mapping_ended = true;
         if self.rec.num_registered_images() >= 2 {
-            let tolerance = if opts.refine.rolling_shutter.is_on() {
-                GlobalBaTolerance::Periodic
-            } else {
-                GlobalBaTolerance::Converged
-            };
-            self.global_refine(tolerance, opts, timings)?;
+            self.global_refine(opts.final_ba_tolerance(), opts, timings)?;
             if opts.refine.refine_intrinsics && opts.refine.estimate_distortion {
                 self.try_radial_distortion(opts, timings)?;
             }

@@ -48,7 +48,7 @@ pub use export::{
     export_scene_with,
 };
 pub use frame::{FrameData, FrameId, FramePose, FrameRecord};
-pub use mapper::observations::{FrameImages, ObservationRefinement};
+pub use mapper::observations::{FrameImages, ObservationRefinement, TrackTemplates};
 pub use mapper::rolling_shutter;
 pub use options::{FeatureKind, MatcherKind, RollingShutter, SlamOptions};
 pub use output::{

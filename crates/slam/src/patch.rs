@@ -17,6 +17,7 @@
 use colslam_geometry::Vec2;
 use colslam_geometry::nalgebra::{Matrix2, Vector2};
 use colslam_image::Image;
+use rayon::prelude::*;
 
 /// Half side of the square patch, pixels (9 x 9 samples).
 pub const PATCH_HALF: i32 = 4;
@@ -258,25 +259,50 @@ fn gaussian_blur(src: &[u8], width: usize, height: usize, sigma: f64) -> Vec<f32
 }
 
 /// One pass of a separable filter of odd length along `(dx, dy)` (one of
-/// them 1), borders replicated.
+/// them 1), borders replicated. Rows in parallel; away from the borders
+/// the taps are accumulated tap by tap over a whole run of pixels, which
+/// vectorises (each value still sums its taps in the same order as the
+/// clamped sum at the borders).
 fn convolve(src: &[f32], width: usize, height: usize, kernel: &[f32], (dx, dy): (usize, usize)) -> Vec<f32> {
-    let radius = (kernel.len() / 2) as isize;
+    let radius = kernel.len() / 2;
     let clamp = |v: isize, n: usize| v.clamp(0, n as isize - 1) as usize;
+    let clamped = |x: usize, y: usize| -> f32 {
+        kernel
+            .iter()
+            .enumerate()
+            .map(|(k, w)| {
+                let o = k as isize - radius as isize;
+                let (sx, sy) =
+                    (clamp(x as isize + o * dx as isize, width), clamp(y as isize + o * dy as isize, height));
+                w * src[sy * width + sx]
+            })
+            .sum()
+    };
     let mut out = vec![0f32; src.len()];
-    for y in 0..height {
-        for x in 0..width {
-            out[y * width + x] = kernel
-                .iter()
-                .enumerate()
-                .map(|(k, w)| {
-                    let o = k as isize - radius;
-                    let (sx, sy) =
-                        (clamp(x as isize + o * dx as isize, width), clamp(y as isize + o * dy as isize, height));
-                    w * src[sy * width + sx]
-                })
-                .sum();
+    out.par_chunks_mut(width.max(1)).enumerate().for_each(|(y, row)| {
+        // The pixels whose taps all lie inside the image.
+        let inner = if dx == 1 {
+            radius..width.saturating_sub(radius).max(radius)
+        } else if y >= radius && y + radius < height {
+            0..width
+        } else {
+            0..0
+        };
+        for (x, o) in row.iter_mut().enumerate().filter(|(x, _)| !inner.contains(x)) {
+            *o = clamped(x, y);
         }
-    }
+        if inner.is_empty() {
+            return;
+        }
+        let dst = &mut row[inner.clone()];
+        for (k, w) in kernel.iter().enumerate() {
+            // The first source pixel of this tap for the run's first pixel.
+            let first = if dx == 1 { y * width + inner.start + k - radius } else { (y + k - radius) * width };
+            for (o, v) in dst.iter_mut().zip(&src[first..first + inner.len()]) {
+                *o += w * v;
+            }
+        }
+    });
     out
 }
 

@@ -11,7 +11,7 @@ use crate::frame::{FrameData, FrameId, FramePose, FrameRecord};
 use crate::frontend::Frontend;
 use crate::keyframe::{ForceKeyframe, keyframe_decision, rotation_compensated_flow};
 use crate::mapper::init::{PairMatches, two_view};
-use crate::mapper::observations::FrameImages;
+use crate::mapper::observations::{FrameImages, ObservationRefinement, TrackTemplates};
 use crate::mapper::{Mapper, RegisterFailure, Registration};
 use crate::options::{GlobalBaTolerance, KEYFRAME_TWO_VIEW_TRIALS};
 use crate::options::{KeyframeOptions, SlamOptions};
@@ -938,8 +938,7 @@ impl Slam {
         // The plane warp between two images assumes each is taken at one
         // instant: with a rolling shutter compensated, the refined
         // observations made TUM less accurate (docs/benchmarks.md).
-        let refine_observations = self.opts.refine.refine_observations && !self.opts.refine.rolling_shutter.is_on();
-        if self.opts.refine.refine_observations && !refine_observations {
+        if self.opts.refine.refine_observations && self.opts.refine.rolling_shutter.is_on() {
             let note = "observation refinement skipped: it assumes a global shutter, and a rolling-shutter readout is compensated";
             tracing::warn!("{note}");
             self.stats.notes.push(note.into());
@@ -954,20 +953,6 @@ impl Slam {
                 map.match_overlapping_pairs(&self.frontend, &self.opts, &mut self.timings)?;
             }
             map.finalize(&self.opts, &mut self.timings)?;
-            if refine_observations && self.images.is_some() {
-                self.check_interrupt()?;
-                if let Some(images) = self.images.as_deref_mut() {
-                    let r = map.refine_observations(images, &self.opts, &mut self.timings)?;
-                    self.stats.refined_observations += r.moved;
-                    if let Some(first) = r.first_unread {
-                        self.stats.notes.push(format!(
-                            "map {}: {} keyframes could not be read again for the observation refinement and kept their keypoints (first: {first})",
-                            map.index(),
-                            r.unread
-                        ));
-                    }
-                }
-            }
         }
         let kept = self.merge_maps(finished)?;
         let mut maps = Vec::new();
@@ -1008,6 +993,34 @@ impl Slam {
         Ok(kept)
     }
 
+    /// Refines the keyframes' observations of `map` when asked (not under a
+    /// rolling-shutter compensation: the plane warp between two images
+    /// assumes each is taken at one instant, and the refined observations
+    /// made TUM less accurate there, docs/benchmarks.md); the tracks'
+    /// templates for the non-keyframes.
+    fn refine_observations(&mut self, map: &mut Mapper) -> Result<Option<TrackTemplates>, SlamError> {
+        if !self.opts.refine.refine_observations || self.opts.refine.rolling_shutter.is_on() {
+            return Ok(None);
+        }
+        self.check_interrupt()?;
+        let Some(images) = self.images.as_deref_mut() else { return Ok(None) };
+        let (r, tracks) = map.refine_observations(images, &self.opts, &mut self.timings)?;
+        self.stats.refined_observations += r.moved;
+        self.note_unread(map, "keyframes", &r);
+        Ok(Some(tracks))
+    }
+
+    /// The report's note on frames a refinement could not read again.
+    fn note_unread(&mut self, map: &Mapper, what: &str, r: &ObservationRefinement) {
+        if let Some(first) = &r.first_unread {
+            self.stats.notes.push(format!(
+                "map {}: {} {what} could not be read again for the observation refinement and kept their keypoints (first: {first})",
+                map.index(),
+                r.unread
+            ));
+        }
+    }
+
     /// Relocalises the untracked frames in `map`, localises every frame,
     /// compensates rolling shutter and refines with all frames when asked,
     /// and colours the points.
@@ -1030,9 +1043,19 @@ impl Slam {
         };
         let extra = map.relocalization_records(orphans, &self.frontend, &mut self.timings)?;
         map.add_records(extra)?;
+        let tracks = self.refine_observations(&mut map)?;
         // Every normalised coordinate from the map's final camera.
         map.refresh_all()?;
-        let loc = map.localize_all(&self.opts, &mut self.timings)?;
+        let mut loc = map.localize_all(&self.opts, &mut self.timings)?;
+        if tracks.is_some() {
+            self.check_interrupt()?;
+        }
+        if let (Some(tracks), Some(images)) = (&tracks, self.images.as_deref_mut()) {
+            let r = map.refine_frame_observations(&mut loc, tracks, images, &self.opts, &mut self.timings)?;
+            self.stats.refined_observations += r.moved;
+            self.note_unread(&map, "non-keyframes", &r);
+        }
+        drop(tracks);
         let (mut loc, readout) = map.rolling_shutter(loc, &self.opts, &mut self.timings)?;
         if self.opts.refine.refine_all_frames {
             map.refine_with_all_frames(&mut loc.poses, &loc.inliers, &self.opts, &mut self.timings)?;

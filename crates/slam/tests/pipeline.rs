@@ -600,12 +600,14 @@ fn each_final_refinement_stage_makes_the_synthetic_map_more_accurate() {
     let (r2, all2, kf2) = run_with_images(&seq, &frames, refined, Vec::new());
     eprintln!("ATE all frames {all0:.6} -> {all1:.6} -> {all2:.6} m, keyframes {kf0:.6} -> {kf1:.6} -> {kf2:.6} m");
     // Measured: keyframes 2.12 -> 1.38 -> 0.41 mm, every frame 1.81 -> 1.66
-    // -> 1.36 mm (the non-keyframes keep their own keypoints).
+    // -> 1.36 mm with the keyframes' observations refined alone (the
+    // non-keyframes localised on their own keypoints), 0.54 mm with theirs
+    // aligned too, which the 0.5x below needs.
     assert!(kf1 < 0.8 * kf0, "robust final BA: keyframes {kf0} -> {kf1}");
     assert_eq!(r1.stats.refined_observations, 0);
     assert!(r2.stats.refined_observations > 1000, "{}", r2.stats.refined_observations);
     assert!(kf2 < 0.5 * kf1, "refined observations: keyframes {kf1} -> {kf2}");
-    assert!(all2 < 0.9 * all1, "refined observations: every frame {all1} -> {all2}");
+    assert!(all2 < 0.5 * all1, "refined observations: every frame {all1} -> {all2}");
 }
 
 #[test]
@@ -620,7 +622,20 @@ fn a_frame_that_cannot_be_read_again_keeps_its_keypoints_and_the_run_finishes() 
     let (r, _, _) = run_with_images(&seq, &frames, on.clone(), (10..60).collect());
     assert_eq!(r.maps.len(), 1);
     assert_eq!(r.maps[0].poses.len(), 60);
-    let note = r.stats.notes.iter().find(|n| n.contains("could not be read again")).expect("a note names the frames");
+    let unread_note = |r: &colslam_slam::SlamResult, what: &str| {
+        r.stats.notes.iter().find(|n| n.contains(&format!(" {what} could not be read again"))).cloned()
+    };
+    let note = unread_note(&r, "keyframes").expect("a note names the keyframes");
+    assert!(note.contains(".png): the file is gone"), "{note}");
+    // Every non-keyframe unreadable: the keyframes are refined, each
+    // non-keyframe keeps its PnP pose, and a note says so.
+    let all = run_with_images(&seq, &frames, on.clone(), Vec::new()).0;
+    let keyframes: Vec<usize> = all.maps[0].poses.iter().filter(|p| p.keyframe).map(|p| p.frame.index).collect();
+    let (r, _, _) = run_with_images(&seq, &frames, on.clone(), (0..60).filter(|i| !keyframes.contains(i)).collect());
+    assert_eq!(r.maps[0].poses.len(), 60);
+    assert!(r.stats.refined_observations > 0 && r.stats.refined_observations < all.stats.refined_observations);
+    assert_eq!(unread_note(&r, "keyframes"), None);
+    let note = unread_note(&r, "non-keyframes").expect("a note names the non-keyframes");
     assert!(note.contains(".png): the file is gone"), "{note}");
     // Nothing readable: nothing moves, and the run still ends with its map.
     let (r, _, _) = run_with_images(&seq, &frames, on.clone(), (0..60).collect());

@@ -25,6 +25,7 @@
 //! video is never held in memory; a frame that cannot be read again is
 //! skipped with a warning and its observations keep their keypoints.
 
+use super::localize::{FrameInliers, Localization};
 use super::state::Mapper;
 use crate::error::SlamError;
 use crate::frame::undistort;
@@ -32,6 +33,7 @@ use crate::options::SlamOptions;
 use crate::patch::{GradientImage, PATCH_HALF, SmoothImage, Template};
 use crate::timing::{Stage, StageTimings};
 use colslam_camera::Camera;
+use colslam_estimators::refine_absolute_pose;
 use colslam_geometry::nalgebra::Matrix2;
 use colslam_geometry::{Rigid3, Vec2, Vec3};
 use colslam_image::Image;
@@ -91,27 +93,117 @@ struct Target {
     xy: Vec2,
 }
 
+/// The reference patches of a map's tracks, cut once for the keyframes'
+/// alignment and kept for the non-keyframes' ([`Mapper::refine_frame_observations`]).
+/// About 1 KB per track: the pipeline drops them once the map's frames are
+/// localised.
+#[derive(Default)]
+pub struct TrackTemplates {
+    /// Each track's template and the reference keypoint it was cut at.
+    templates: HashMap<Point3DId, (Template, Vec2)>,
+    /// Each track's reference keyframe.
+    reference_of: HashMap<Point3DId, ImageId>,
+}
+
+/// Frames that could not be read again: each named once in a warning, the
+/// first kept for the run's report.
+struct Unread {
+    map: usize,
+    names: HashMap<usize, String>,
+    frames: BTreeSet<usize>,
+    first: Option<String>,
+}
+
+impl Unread {
+    fn note(&mut self, index: usize, why: &str) {
+        self.frames.insert(index);
+        let frame = format!("frame {index} ({})", self.names.get(&index).map_or("?", String::as_str));
+        tracing::warn!(
+            "map {}: {frame} could not be read again for the observation refinement: {why}; its observations keep their keypoints",
+            self.map
+        );
+        self.first.get_or_insert_with(|| format!("{frame}: {why}"));
+    }
+}
+
+/// The median of the moves and the log line, shared by both passes.
+fn summary(
+    map: usize,
+    what: &str,
+    tracks: usize,
+    tried: usize,
+    mut shifts: Vec<f64>,
+    unread: Unread,
+) -> ObservationRefinement {
+    let moved = shifts.len();
+    let median_shift_px = colslam_geometry::stats::median_in_place(&mut shifts).unwrap_or(0.0);
+    let report = ObservationRefinement {
+        tracks,
+        tried,
+        moved,
+        median_shift_px,
+        unread: unread.frames.len(),
+        first_unread: unread.first,
+    };
+    tracing::info!(
+        "map {map}: {what} observations refined: {} of {} moved (median {:.2} px) over {} tracks{}",
+        report.moved,
+        report.tried,
+        report.median_shift_px,
+        report.tracks,
+        if report.unread > 0 { format!(", {} frames unread", report.unread) } else { String::new() }
+    );
+    report
+}
+
 impl Mapper {
     /// Refines the keyframes' observations by patch alignment (the module
     /// documentation), then bundle adjusts the map again (converged, or to
     /// the periodic tolerance when a rolling-shutter compensation follows).
+    /// Returns the tracks' templates for [`Self::refine_frame_observations`].
     pub fn refine_observations(
         &mut self,
         images: &mut dyn FrameImages,
         opts: &SlamOptions,
         timings: &mut StageTimings,
-    ) -> Result<ObservationRefinement, SlamError> {
-        let report = timings.time(Stage::ObservationRefinement, || self.align_observations(images))?;
+    ) -> Result<(ObservationRefinement, TrackTemplates), SlamError> {
+        let (report, templates) = timings.time(Stage::ObservationRefinement, || self.align_observations(images))?;
         if report.moved == 0 {
-            return Ok(report);
+            return Ok((report, templates));
         }
         self.global_refine(opts.final_ba_tolerance(), opts, timings)?;
         self.rec.update_point_errors()?;
-        Ok(report)
+        Ok((report, templates))
+    }
+
+    /// Aligns observations `(tag, point, pixel)` in one image taken from
+    /// `pose` to their tracks' templates: the aligned pixel and the move for
+    /// each that was found and passed the checks.
+    fn align_in_image<T: Copy + Send + Sync>(
+        &self,
+        camera: &Camera,
+        tracks: &TrackTemplates,
+        image: &SmoothImage,
+        pose: &Rigid3,
+        list: &[(T, Point3DId, Vec2)],
+    ) -> Vec<Option<(T, Vec2, f64)>> {
+        let rec = &self.rec;
+        list.par_iter()
+            .map(|(tag, pid, xy)| {
+                let (template, ref_xy) = tracks.templates.get(pid)?;
+                let ref_pose = rec.image(*tracks.reference_of.get(pid)?)?.cam_from_world;
+                let (anchor, warp) = plane_warp(camera, &ref_pose, ref_xy, pose, &rec.point3d(*pid)?.xyz)?;
+                let a = image.align(template, &(xy + anchor), &warp, MAX_SHIFT_PX)?;
+                (a.zncc >= MIN_ZNCC).then(|| (*tag, xy + a.shift, a.shift.norm()))
+            })
+            .collect()
     }
 
     /// The alignment itself: moves observations, no bundle adjustment.
-    fn align_observations(&mut self, images: &mut dyn FrameImages) -> Result<ObservationRefinement, SlamError> {
+    fn align_observations(
+        &mut self,
+        images: &mut dyn FrameImages,
+    ) -> Result<(ObservationRefinement, TrackTemplates), SlamError> {
         let camera = self.camera()?.clone();
         // Registered keyframes: image id -> (slot, frame index).
         let slot: HashMap<ImageId, (usize, usize)> = self
@@ -124,7 +216,7 @@ impl Mapper {
         let frame_of = |id: &ImageId| slot.get(id).map(|s| s.1);
         // Each track's reference: the middle observation in frame order.
         let mut references: BTreeMap<usize, Vec<(Point3DId, Vec2)>> = BTreeMap::new();
-        let mut reference_of: HashMap<Point3DId, ImageId> = HashMap::new();
+        let mut tracks = TrackTemplates::default();
         for (pid, p) in self.rec.points3d() {
             let mut els: Vec<_> = p.track.iter().filter_map(|e| frame_of(&e.image_id).map(|f| (f, e))).collect();
             if els.len() < 2 {
@@ -136,14 +228,12 @@ impl Mapper {
                 continue;
             };
             references.entry(frame).or_default().push((pid, xy.xy));
-            reference_of.insert(pid, el.image_id);
+            tracks.reference_of.insert(pid, el.image_id);
         }
-        let names: HashMap<usize, &str> =
-            self.keyframes.iter().map(|k| (k.data.index(), k.data.id.name.as_str())).collect();
         // Every other observation of a track with a reference, by frame.
         let mut targets: BTreeMap<usize, (ImageId, Vec<Target>)> = BTreeMap::new();
         for (pid, p) in self.rec.points3d() {
-            let Some(reference) = reference_of.get(&pid) else { continue };
+            let Some(reference) = tracks.reference_of.get(&pid) else { continue };
             for el in p.track.iter().filter(|el| el.image_id != *reference) {
                 let Some(frame) = frame_of(&el.image_id) else { continue };
                 let Some(xy) = self.rec.image(el.image_id).and_then(|i| i.points2d.get(el.point2d_idx as usize)) else {
@@ -153,32 +243,22 @@ impl Mapper {
                 entry.1.push(Target { point: pid, point2d: el.point2d_idx, xy: xy.xy });
             }
         }
-        let mut unread: BTreeSet<usize> = BTreeSet::new();
-        let map_index = self.index;
-        let mut first_unread: Option<String> = None;
-        let mut warn = |unread: &mut BTreeSet<usize>, index: usize, why: &str| {
-            unread.insert(index);
-            let frame = format!("frame {index} ({})", names.get(&index).copied().unwrap_or("?"));
-            tracing::warn!(
-                "map {map_index}: {frame} could not be read again for the observation refinement: {why}; its observations keep their keypoints"
-            );
-            first_unread.get_or_insert_with(|| format!("{frame}: {why}"));
-        };
+        let names = self.keyframes.iter().map(|k| (k.data.index(), k.data.id.name.clone())).collect();
+        let mut unread = Unread { map: self.index, names, frames: BTreeSet::new(), first: None };
         // Pass 1: the templates, at the reference keypoints. The gray
         // images the second pass needs stay in memory within a budget, so a
         // short sequence is read once.
-        let mut templates: HashMap<Point3DId, (Template, Vec2)> = HashMap::new();
         let mut kept: BTreeMap<usize, Image> = BTreeMap::new();
         let mut kept_bytes = 0usize;
         let frames: Vec<usize> = references.keys().copied().collect();
         images.read(&frames, &mut |index, image| match image {
-            Err(why) => warn(&mut unread, index, &why),
+            Err(why) => unread.note(index, &why),
             Ok(image) => {
                 let gray = image.to_gray();
                 let g = GradientImage::new(&gray);
                 for (pid, xy) in references.get(&index).into_iter().flatten() {
                     if let Some(t) = g.template(xy) {
-                        templates.insert(*pid, (t, *xy));
+                        tracks.templates.insert(*pid, (t, *xy));
                     }
                 }
                 if targets.contains_key(&index) && kept_bytes + gray.data().len() <= KEPT_IMAGE_BYTES {
@@ -188,27 +268,17 @@ impl Mapper {
             }
         })?;
         // Pass 2: the alignments.
-        let poses: HashMap<ImageId, Rigid3> =
-            slot.keys().filter_map(|id| self.rec.image(*id).map(|i| (*id, i.cam_from_world))).collect();
-        let points: HashMap<Point3DId, Vec3> =
-            templates.keys().filter_map(|pid| self.rec.point3d(*pid).map(|p| (*pid, p.xyz))).collect();
         let mut moves: Vec<(ImageId, u32, Vec2, f64)> = Vec::new();
         let mut tried = 0usize;
         let mut align_in = |index: usize, image: &Image| {
             let Some((image_id, list)) = targets.get(&index) else { return };
-            let g = SmoothImage::new(image);
-            let found: Vec<Option<(u32, Vec2, f64)>> = list
-                .par_iter()
-                .filter(|t| templates.contains_key(&t.point))
-                .map(|t| {
-                    let (template, ref_xy) = templates.get(&t.point)?;
-                    let ref_pose = poses.get(reference_of.get(&t.point)?)?;
-                    let (anchor, warp) =
-                        plane_warp(&camera, ref_pose, ref_xy, poses.get(image_id)?, points.get(&t.point)?)?;
-                    let a = g.align(template, &(t.xy + anchor), &warp, MAX_SHIFT_PX)?;
-                    (a.zncc >= MIN_ZNCC).then(|| (t.point2d, t.xy + a.shift, a.shift.norm()))
-                })
+            let Some(pose) = self.rec.image(*image_id).map(|i| i.cam_from_world) else { return };
+            let list: Vec<(u32, Point3DId, Vec2)> = list
+                .iter()
+                .filter(|t| tracks.templates.contains_key(&t.point))
+                .map(|t| (t.point2d, t.point, t.xy))
                 .collect();
+            let found = self.align_in_image(&camera, &tracks, &SmoothImage::new(image), &pose, &list);
             tried += found.len();
             moves.extend(found.into_iter().flatten().map(|(k, xy, d)| (*image_id, k, xy, d)));
         };
@@ -217,13 +287,12 @@ impl Mapper {
             align_in(index, &image);
         }
         let frames: Vec<usize> =
-            targets.keys().filter(|f| !kept_frames.contains(f) && !unread.contains(f)).copied().collect();
+            targets.keys().filter(|f| !kept_frames.contains(f) && !unread.frames.contains(f)).copied().collect();
         images.read(&frames, &mut |index, image| match image {
-            Err(why) => warn(&mut unread, index, &why),
+            Err(why) => unread.note(index, &why),
             Ok(image) => align_in(index, &image),
         })?;
         let mut shifts = Vec::with_capacity(moves.len());
-        let mut moved = 0;
         for (image_id, k, xy, d) in moves {
             let Some(n) = undistort(&camera, &xy) else { continue };
             let Some(&(s, _)) = slot.get(&image_id) else { continue };
@@ -233,23 +302,89 @@ impl Mapper {
                 *nm = n;
                 self.rec.set_point2d_xy(image_id, k, xy)?;
                 shifts.push(d);
-                moved += 1;
             }
         }
-        let median_shift_px = colslam_geometry::stats::median_in_place(&mut shifts).unwrap_or(0.0);
-        let unread = unread.len();
-        let report =
-            ObservationRefinement { tracks: templates.len(), tried, moved, median_shift_px, unread, first_unread };
-        tracing::info!(
-            "map {}: observations refined: {} of {} moved (median {:.2} px) over {} tracks{}",
-            self.index,
-            report.moved,
-            report.tried,
-            report.median_shift_px,
-            report.tracks,
-            if unread > 0 { format!(", {unread} frames unread") } else { String::new() }
-        );
-        Ok(report)
+        let report = summary(self.index, "keyframe", tracks.templates.len(), tried, shifts, unread);
+        Ok((report, tracks))
+    }
+
+    /// Aligns the localised non-keyframes' PnP inliers to their tracks'
+    /// templates and refines each such frame's pose on the aligned
+    /// observations (with `--refine-all-frames`, these observations enter the
+    /// final bundle adjustment). The frames are read again one at a time.
+    pub fn refine_frame_observations(
+        &self,
+        loc: &mut Localization,
+        tracks: &TrackTemplates,
+        images: &mut dyn FrameImages,
+        opts: &SlamOptions,
+        timings: &mut StageTimings,
+    ) -> Result<ObservationRefinement, SlamError> {
+        timings.time(Stage::ObservationRefinement, || {
+            let camera = self.camera()?;
+            // The pose refinement PnP ended with.
+            let refine = opts.mapper.absolute_pose(self.focal()?, opts.seed).refine_options;
+            let slot: HashMap<usize, usize> =
+                loc.poses.iter().enumerate().filter(|(_, p)| !p.keyframe).map(|(s, p)| (p.frame.index, s)).collect();
+            // The frames with an observation of a track with a template.
+            let frames: BTreeSet<usize> = loc
+                .inliers
+                .iter()
+                .filter(|(f, inl)| {
+                    slot.contains_key(f) && inl.iter().any(|(_, pid)| tracks.templates.contains_key(pid))
+                })
+                .map(|(f, _)| *f)
+                .collect();
+            let frames: Vec<usize> = frames.into_iter().collect();
+            let names = loc.poses.iter().map(|p| (p.frame.index, p.frame.name.clone())).collect();
+            let mut unread = Unread { map: self.index, names, frames: BTreeSet::new(), first: None };
+            let mut shifts = Vec::new();
+            let mut tried = 0usize;
+            let mut refined: Vec<(usize, Rigid3, FrameInliers)> = Vec::new();
+            images.read(&frames, &mut |index, image| {
+                let image = match image {
+                    Err(why) => return unread.note(index, &why),
+                    Ok(image) => image,
+                };
+                let (Some(&s), Some(inliers)) = (slot.get(&index), loc.inliers.get(&index)) else { return };
+                let pose = loc.poses[s].cam_from_world;
+                let list: Vec<(usize, Point3DId, Vec2)> = inliers
+                    .iter()
+                    .enumerate()
+                    .filter(|(_, (_, pid))| tracks.templates.contains_key(pid))
+                    .map(|(k, (n, pid))| (k, *pid, camera.img_from_normalized(n)))
+                    .collect();
+                let found = self.align_in_image(camera, tracks, &SmoothImage::new(&image.to_gray()), &pose, &list);
+                tried += found.len();
+                let mut aligned = inliers.clone();
+                let before = shifts.len();
+                for (k, xy, d) in found.into_iter().flatten() {
+                    if let Some(n) = undistort(camera, &xy) {
+                        aligned[k].0 = n;
+                        shifts.push(d);
+                    }
+                }
+                if shifts.len() == before {
+                    return;
+                }
+                let p3: Vec<Vec3> =
+                    aligned.iter().filter_map(|(_, pid)| self.rec.point3d(*pid).map(|p| p.xyz)).collect();
+                if p3.len() != aligned.len() {
+                    return;
+                }
+                let p2: Vec<Vec2> = aligned.iter().map(|(n, _)| *n).collect();
+                if let Ok((pose, _)) = refine_absolute_pose(&pose, &p2, &p3, &refine) {
+                    refined.push((index, pose, aligned));
+                }
+            })?;
+            for (index, pose, aligned) in refined {
+                if let Some(&s) = slot.get(&index) {
+                    loc.poses[s].cam_from_world = pose;
+                }
+                loc.inliers.insert(index, aligned);
+            }
+            Ok(summary(self.index, "non-keyframe", tracks.templates.len(), tried, shifts, unread))
+        })
     }
 }
 

@@ -40,6 +40,20 @@ pub struct BundleOptions {
     /// weighted by its inverse (ORB-SLAM's per-level information). Missing
     /// entries weigh 1.
     pub keypoint_sigmas: Option<KeypointSigmas>,
+    /// Which intrinsics a bundle that refines them frees.
+    pub intrinsics: RefinedIntrinsics,
+}
+
+/// Which intrinsics a bundle adjustment refining them frees.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub enum RefinedIntrinsics {
+    /// The focal length(s) and the distortion terms the calibration uses
+    /// ([`refined_intrinsics`]).
+    #[default]
+    Calibration,
+    /// The first radial distortion term alone (focal length and principal
+    /// point held): a given calibration's residual radial distortion.
+    FirstRadial,
 }
 
 impl BundleOptions {
@@ -48,13 +62,13 @@ impl BundleOptions {
     pub fn local() -> Self {
         Self {
             ba: BaOptions { loss: LossFunction::SoftL1(1.0), max_iterations: 25, ..BaOptions::default() },
-            keypoint_sigmas: None,
+            ..Self::default()
         }
     }
 
     /// COLMAP's global-BA settings: trivial loss, at most 50 iterations.
     pub fn global() -> Self {
-        Self { ba: BaOptions { max_iterations: 50, ..BaOptions::default() }, keypoint_sigmas: None }
+        Self { ba: BaOptions { max_iterations: 50, ..BaOptions::default() }, ..Self::default() }
     }
 }
 
@@ -90,9 +104,16 @@ pub fn covisible_images(rec: &Reconstruction, image_id: ImageId, min_shared: usi
 /// = k6 = 0); freeing it lets BA trade it against the others, which on TUM
 /// fr1 drove k1 to 26. A camera without any distortion value (a guess)
 /// refines every term of its model. The principal point stays fixed, as in
-/// COLMAP.
-pub fn refined_intrinsics(camera: &colslam_camera::Camera) -> IntrinsicsRefinement {
+/// COLMAP. With [`RefinedIntrinsics::FirstRadial`], the model's first
+/// radial term alone (none for a model without distortion).
+pub fn refined_intrinsics(camera: &colslam_camera::Camera, which: RefinedIntrinsics) -> IntrinsicsRefinement {
     let model = camera.model;
+    if which == RefinedIntrinsics::FirstRadial {
+        return match model.extra_params_idxs().first() {
+            Some(k1) => IntrinsicsRefinement::Params(vec![*k1]),
+            None => IntrinsicsRefinement::Fixed,
+        };
+    }
     let mut idx: Vec<usize> = model.focal_length_idxs().to_vec();
     let extras = model.extra_params_idxs();
     let used: Vec<usize> =
@@ -129,6 +150,7 @@ fn add_images(
     rec: &Reconstruction,
     config: &BundleConfig,
     images: &BTreeSet<ImageId>,
+    which: RefinedIntrinsics,
 ) -> Result<ProblemIndex, SfmError> {
     let mut index = ProblemIndex { cameras: BTreeMap::new(), poses: BTreeMap::new(), points: Vec::new() };
     for id in images {
@@ -139,8 +161,11 @@ fn add_images(
         let variable = config.variable_images.contains(id) && !config.constant_images.contains(id);
         if let std::collections::btree_map::Entry::Vacant(e) = index.cameras.entry(img.camera_id) {
             let cam = rec.camera(img.camera_id).ok_or(colslam_scene::SceneError::UnknownCamera(img.camera_id))?;
-            let refine =
-                if config.refine_intrinsics { refined_intrinsics(&cam.camera) } else { IntrinsicsRefinement::Fixed };
+            let refine = if config.refine_intrinsics {
+                refined_intrinsics(&cam.camera, which)
+            } else {
+                IntrinsicsRefinement::Fixed
+            };
             e.insert(problem.add_camera(cam.camera.clone(), refine));
         }
         let pose = if variable { BaPose::variable(img.cam_from_world) } else { BaPose::fixed(img.cam_from_world) };
@@ -256,7 +281,7 @@ pub fn adjust_bundle(
     }
     images.extend(config.constant_images.iter().copied());
     let mut problem = Problem::default();
-    let mut index = add_images(&mut problem, rec, config, &images)?;
+    let mut index = add_images(&mut problem, rec, config, &images, opts.intrinsics)?;
     add_points(&mut problem, &mut index, rec, opts, &variable_points);
     fix_gauge(&mut problem, &index, config);
     let report = BundleAdjuster::solve(&mut problem, &opts.ba)?;
@@ -351,16 +376,22 @@ mod tests {
             height: 480,
             params: vec![517.3, 516.5, 318.6, 255.3, 0.2624, -0.9531, -0.0054, 0.0026, 1.1633, 0.0, 0.0, 0.0],
         };
-        assert_eq!(refined_intrinsics(&tum), IntrinsicsRefinement::Params(vec![0, 1, 4, 5, 6, 7, 8]));
+        assert_eq!(
+            refined_intrinsics(&tum, RefinedIntrinsics::Calibration),
+            IntrinsicsRefinement::Params(vec![0, 1, 4, 5, 6, 7, 8])
+        );
         // A guessed camera has no distortion value yet: every term is free.
         let guess = Camera::simple_pinhole(640, 480, 600.0, 320.0, 240.0);
-        assert_eq!(refined_intrinsics(&guess), IntrinsicsRefinement::Params(vec![0]));
+        assert_eq!(refined_intrinsics(&guess, RefinedIntrinsics::Calibration), IntrinsicsRefinement::Params(vec![0]));
         let radial = Camera {
             model: CameraModelId::SimpleRadial,
             width: 640,
             height: 480,
             params: vec![600.0, 320.0, 240.0, 0.0],
         };
-        assert_eq!(refined_intrinsics(&radial), IntrinsicsRefinement::Params(vec![0, 3]));
+        assert_eq!(
+            refined_intrinsics(&radial, RefinedIntrinsics::Calibration),
+            IntrinsicsRefinement::Params(vec![0, 3])
+        );
     }
 }

@@ -76,7 +76,9 @@ fn prefix_map(
     opts: &SlamOptions,
 ) -> Result<Option<Reconstruction>, SlamError> {
     let mut opts = opts.clone();
+    // Only the focal length varies between the candidates' maps.
     opts.refine.refine_intrinsics = false;
+    opts.refine.refine_distortion = false;
     opts.refine.rolling_shutter = RollingShutter::Seconds(0.0);
     let mut slam = Slam::new(opts, &centred_camera(w, h, f), EventSink::none())?;
     for frame in frames {

@@ -13,9 +13,10 @@
 //! collections, the field says why (measurements in docs/history.md).
 
 use crate::error::SlamError;
+use colslam_camera::{Camera, CameraModelId};
 use colslam_estimators::{AbsolutePoseOptions, RansacOptions};
 use colslam_sfm::TriangulatorOptions;
-use colslam_sfm::bundle::{BundleOptions, KeypointSigmas};
+use colslam_sfm::bundle::{BundleOptions, KeypointSigmas, RefinedIntrinsics};
 use serde::{Deserialize, Serialize};
 
 /// Feature extractors.
@@ -526,6 +527,11 @@ pub struct RefineOptions {
     /// Off by default: with `--robust-intrinsics` it finds the focal length of synthetic distorted lenses, but on TUM fr1 (rolling shutter) the radial term trades against the focal length (docs/benchmarks.md).
     #[cfg_attr(feature = "cli", arg(long))]
     pub estimate_distortion: bool,
+    /// Refine a radial distortion term of a calibration without distortion in the global BAs (focal length and principal point held).
+    ///
+    /// A calibration without distortion terms says the images were rectified or undistorted, which is never exact, and a residual radial distortion is invisible under forward motion (it moves each point along its epipolar line, which the point's depth absorbs) until the camera turns, where the map then pays for it in scale: on KITTI odometry the data ask for k1 = 0.016 against the rectified calibration's 0, and the drive's ATE falls from 3.96 to 0.26 m (docs/benchmarks.md, "Residual radial distortion"). The pinhole camera becomes OPENCV (SIMPLE_PINHOLE: SIMPLE_RADIAL) with k1 from 0. A calibration with distortion terms is kept as it is, and so is a camera whose intrinsics are refined anyway (`--refine-intrinsics`, a guessed or estimated camera).
+    #[cfg_attr(feature = "cli", arg(long, value_name = "BOOL", default_value_t = RefineOptions::default().refine_distortion, action = clap::ArgAction::Set))]
+    pub refine_distortion: bool,
     /// With refined intrinsics, a robust (Cauchy 1 px) loss in the global BAs.
     ///
     /// Once a global BA moves the focal length by under 1 %: mismatches then no longer pull it (the synthetic room, TUM and Strecha end closer to the truth, entry and castle with a third to a half of the error: docs/benchmarks.md). A calibrated camera, whose intrinsics are not refined, is unaffected.
@@ -580,6 +586,7 @@ impl Default for RefineOptions {
         Self {
             refine_intrinsics: false,
             estimate_distortion: false,
+            refine_distortion: true,
             robust_intrinsics: true,
             localize_all_frames: true,
             refine_all_frames: false,
@@ -709,7 +716,36 @@ impl SlamOptions {
         if self.refine.refine_intrinsics && self.refine.robust_intrinsics && settled {
             ba.ba.loss = colslam_optim::LossFunction::Cauchy(SELF_CALIBRATION_LOSS_SCALE);
         }
+        ba.intrinsics = self.refined_intrinsics();
         ba
+    }
+
+    /// Settles `--refine-distortion` against the camera (done by
+    /// [`crate::Slam::new`]): with the whole camera refined anyway the flag
+    /// goes (its distortion terms are refined with it), and so it does for
+    /// a calibration that models its distortion (fitted with those terms,
+    /// trusted as it is: freeing k1 alone on TUM fr1 made it less accurate,
+    /// docs/benchmarks.md); otherwise the global BAs refine the intrinsics,
+    /// the first radial term alone, and a camera without one gets it at 0
+    /// (the returned camera).
+    pub fn settle_distortion_refinement(&mut self, camera: &Camera) -> Result<Camera, SlamError> {
+        let modelled =
+            camera.model.extra_params_idxs().iter().any(|&i| camera.params.get(i).is_some_and(|v| *v != 0.0));
+        if self.refine.refine_intrinsics || modelled {
+            self.refine.refine_distortion = false;
+        }
+        if !self.refine.refine_distortion {
+            return Ok(camera.clone());
+        }
+        self.refine.refine_intrinsics = true;
+        with_radial_term(camera)
+    }
+
+    /// Which intrinsics the global BAs free when they refine any: the first
+    /// radial term alone with `--refine-distortion` (the pipeline driver
+    /// turns it off when the whole camera is refined).
+    pub fn refined_intrinsics(&self) -> RefinedIntrinsics {
+        if self.refine.refine_distortion { RefinedIntrinsics::FirstRadial } else { RefinedIntrinsics::Calibration }
     }
 
     /// How far the converging global BAs at the end of a map go: fully, or
@@ -764,6 +800,19 @@ impl SlamOptions {
             ),
         }
     }
+}
+
+/// `camera` with a radial distortion term to refine: a pinhole model
+/// becomes the same model with k1 = 0 (PINHOLE: OPENCV, SIMPLE_PINHOLE:
+/// SIMPLE_RADIAL); a model with distortion terms is returned as it is.
+fn with_radial_term(camera: &Camera) -> Result<Camera, SlamError> {
+    let (model, extra): (CameraModelId, &[f64]) = match camera.model {
+        CameraModelId::Pinhole => (CameraModelId::OpenCv, &[0.0; 4]),
+        CameraModelId::SimplePinhole => (CameraModelId::SimpleRadial, &[0.0]),
+        _ => return Ok(camera.clone()),
+    };
+    let params = [camera.params.as_slice(), extra].concat();
+    Ok(Camera::new(model, camera.width, camera.height, params)?)
 }
 
 #[cfg(test)]

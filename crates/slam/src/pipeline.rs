@@ -375,11 +375,12 @@ impl Slam {
     /// A pipeline for a camera calibrated in OpenCV's pixel convention (as
     /// camera files give it), sending events to `events`.
     pub fn new(
-        opts: SlamOptions,
+        mut opts: SlamOptions,
         camera_opencv: &colslam_camera::Camera,
         events: EventSink,
     ) -> Result<Self, SlamError> {
         opts.validate()?;
+        let camera_opencv = &opts.settle_distortion_refinement(camera_opencv)?;
         let frontend = Arc::new(Frontend::new(&opts.frontend, camera_opencv)?);
         let spill = SpillConfig::temp(record_budget(&opts));
         Ok(Self {

@@ -500,8 +500,18 @@ pub fn run(config: &RunConfig, events: EventSink, mut hooks: RunHooks<'_>) -> Re
     apply_file_readout(&resolved, &mut slam_opts);
     // A focal length that is only a prior is refined by bundle adjustment.
     slam_opts.refine.refine_intrinsics = config.camera.refines(&resolved.source, slam_opts.refine.refine_intrinsics);
+    // A focal length alone (`--focal`, EXIF) is no calibration of the lens:
+    // it is kept as given, as before, so a written camera given back
+    // reproduces the run; `--refine-intrinsics` refines it with the rest.
+    if resolved.source.is_prior() {
+        slam_opts.refine.refine_distortion = false;
+    }
     if slam_opts.refine.refine_intrinsics {
         tracing::info!("intrinsics: refined by bundle adjustment");
+    } else if slam_opts.refine.refine_distortion {
+        tracing::info!(
+            "intrinsics: focal length kept as given, the first radial distortion term refined (--refine-distortion)"
+        );
     } else if resolved.source.is_prior() {
         tracing::info!("intrinsics: kept as given (--refine-intrinsics refines them)");
     }
@@ -997,6 +1007,9 @@ mod tests {
         assert_eq!(camera.params, [131.25, 79.5, 59.5]);
         let mut c = config(&input, &second, 20, false);
         c.camera = CameraOptions { camera: Some(written.clone()), ..CameraOptions::default() };
+        // A camera file without distortion terms has its radial term refined
+        // by default; the first run held it (a focal length alone).
+        c.options.slam.refine.refine_distortion = false;
         let b = run(&c, EventSink::none(), RunHooks::default()).unwrap_or_else(|e| panic!("run: {e}"));
         assert_eq!(b.report.camera_source, Some(CameraSource::File { path: written }));
         assert_same_files(
@@ -1021,6 +1034,7 @@ mod tests {
         // Given back with the default options, the file's readout is compensated.
         let mut c = config(&input, &second, 20, false);
         c.camera = CameraOptions { camera: Some(written), ..CameraOptions::default() };
+        c.options.slam.refine.refine_distortion = false;
         let b = run(&c, EventSink::none(), RunHooks::default()).unwrap_or_else(|e| panic!("run: {e}"));
         assert_eq!(b.report.options.refine.rolling_shutter, crate::options::RollingShutter::Seconds(0.02));
         assert_same_files(&first, &second, &["trajectory.tum", "images.bin", "points3D.bin", "camera.yaml"]);

@@ -136,6 +136,7 @@ fn auto_readout_ba(opts: &SlamOptions) -> colslam_sfm::bundle::BundleOptions {
     let mut ba = opts.mapper.global_ba(GlobalBaTolerance::Periodic);
     ba.ba.function_tolerance = AUTO_BA_FUNCTION_TOLERANCE;
     ba.ba.loss = colslam_optim::LossFunction::SoftL1(1.0);
+    ba.intrinsics = opts.refined_intrinsics();
     ba
 }
 

@@ -328,7 +328,18 @@ impl Mapper {
         let refine = opts.refine.refine_intrinsics;
         self.log_global_probe("before");
         let before = self.focal()?;
-        let report = timings.time(Stage::GlobalBa, || adjust_global(&mut self.rec, refine, &ba))?;
+        // A residual distortion term that runs away (mismatches of a young
+        // map under forward motion pull it along the depth it trades with)
+        // is refused: the map goes back and is adjusted with it held.
+        let kept = opts.refine.refine_distortion.then(|| self.rec.clone());
+        let mut report = timings.time(Stage::GlobalBa, || adjust_global(&mut self.rec, refine, &ba))?;
+        if let Some(kept) = kept
+            && !plausible_camera(self.camera()?)
+        {
+            tracing::debug!("map {}: the refined distortion term ran away; held for this BA", self.index);
+            self.rec = kept;
+            report = timings.time(Stage::GlobalBa, || adjust_global(&mut self.rec, false, &ba))?;
+        }
         self.focal_step = (self.focal()? / before - 1.0).abs();
         self.intrinsics_refined(opts);
         tracing::debug!(

@@ -527,9 +527,11 @@ pub struct RefineOptions {
     /// Off by default: with `--robust-intrinsics` it finds the focal length of synthetic distorted lenses, but on TUM fr1 (rolling shutter) the radial term trades against the focal length (docs/benchmarks.md).
     #[cfg_attr(feature = "cli", arg(long))]
     pub estimate_distortion: bool,
-    /// Refine a radial distortion term of a calibration without distortion in the global BAs (focal length and principal point held).
+    /// Estimate a radial distortion term for a calibration without one.
     ///
-    /// A calibration without distortion terms says the images were rectified or undistorted, which is never exact, and a residual radial distortion is invisible under forward motion (it moves each point along its epipolar line, which the point's depth absorbs) until the camera turns, where the map then pays for it in scale: on KITTI odometry the data ask for k1 = 0.016 against the rectified calibration's 0, and the drive's ATE falls from 3.96 to 0.26 m (docs/benchmarks.md, "Residual radial distortion"). The pinhole camera becomes OPENCV (SIMPLE_PINHOLE: SIMPLE_RADIAL) with k1 from 0. A calibration with distortion terms is kept as it is, and so is a camera whose intrinsics are refined anyway (`--refine-intrinsics`, a guessed or estimated camera).
+    /// The global BAs refine that term alone; the focal length and principal point stay as given.
+    ///
+    /// A calibration without distortion terms says the images were rectified or undistorted, which is never exact, and a residual radial distortion is invisible under forward motion (it moves each point along its epipolar line, which the point's depth absorbs) until the camera turns, where the map then pays for it in scale: on KITTI odometry the data ask for k1 = 0.016 against the rectified calibration's 0, and the drive's ATE falls from 3.96 to 0.26 m (docs/benchmarks.md, "Residual radial distortion"). The pinhole camera becomes OPENCV (SIMPLE_PINHOLE: SIMPLE_RADIAL) with k1 from 0. A calibration with distortion terms is kept as it is (freeing TUM's k1 made it less accurate), and so are a focal length alone (`--focal`, EXIF) and a camera whose intrinsics are refined anyway (`--refine-intrinsics`, a guessed or estimated camera).
     #[cfg_attr(feature = "cli", arg(long, value_name = "BOOL", default_value_t = RefineOptions::default().refine_distortion, action = clap::ArgAction::Set))]
     pub refine_distortion: bool,
     /// With refined intrinsics, a robust (Cauchy 1 px) loss in the global BAs.

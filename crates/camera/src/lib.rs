@@ -223,6 +223,20 @@ impl Camera {
         self.extra_params().iter().any(|&k| k != 0.0)
     }
 
+    /// This camera with a radial distortion term at 0, for bundle
+    /// adjustment to estimate: a pinhole becomes the same camera in the
+    /// model with that term (PINHOLE: OPENCV, SIMPLE_PINHOLE:
+    /// SIMPLE_RADIAL); a model with distortion terms is returned as it is.
+    pub fn with_radial_term(&self) -> Self {
+        let (model, extra): (CameraModelId, &[f64]) = match self.model {
+            CameraModelId::Pinhole => (CameraModelId::OpenCv, &[0.0; 4]),
+            CameraModelId::SimplePinhole => (CameraModelId::SimpleRadial, &[0.0]),
+            _ => return self.clone(),
+        };
+        // The pinhole's parameters lead both models' in the same order.
+        Self { model, params: [self.params.as_slice(), extra].concat(), ..*self }
+    }
+
     /// Checks parameter count, finiteness, positive focal length(s),
     /// positive size and a principal point within
     /// [`MAX_PRINCIPAL_POINT_OUTSIDE`] image sizes of the image.
@@ -371,6 +385,17 @@ impl Camera {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_radial_term_keeps_the_pinhole_and_starts_at_zero() {
+        let c = Camera::pinhole(640, 480, 500.0, 510.0, 320.0, 240.0).with_radial_term();
+        assert_eq!(c.model, CameraModelId::OpenCv);
+        assert_eq!(c.params, [500.0, 510.0, 320.0, 240.0, 0.0, 0.0, 0.0, 0.0]);
+        c.validate().unwrap();
+        let s = Camera::simple_pinhole(640, 480, 500.0, 320.0, 240.0).with_radial_term();
+        assert_eq!((s.model, s.params.as_slice()), (CameraModelId::SimpleRadial, &[500.0, 320.0, 240.0, 0.0][..]));
+        assert_eq!(s.with_radial_term(), s, "a model with distortion terms stays as it is");
+    }
 
     #[test]
     fn accessors_and_validate() {

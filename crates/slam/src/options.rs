@@ -13,7 +13,7 @@
 //! collections, the field says why (measurements in docs/history.md).
 
 use crate::error::SlamError;
-use colslam_camera::{Camera, CameraModelId};
+use colslam_camera::Camera;
 use colslam_estimators::{AbsolutePoseOptions, RansacOptions};
 use colslam_sfm::TriangulatorOptions;
 use colslam_sfm::bundle::{BundleOptions, KeypointSigmas, RefinedIntrinsics};
@@ -730,17 +730,23 @@ impl SlamOptions {
     /// docs/benchmarks.md); otherwise the global BAs refine the intrinsics,
     /// the first radial term alone, and a camera without one gets it at 0
     /// (the returned camera).
-    pub fn settle_distortion_refinement(&mut self, camera: &Camera) -> Result<Camera, SlamError> {
-        let modelled =
-            camera.model.extra_params_idxs().iter().any(|&i| camera.params.get(i).is_some_and(|v| *v != 0.0));
-        if self.refine.refine_intrinsics || modelled {
+    pub fn settle_distortion_refinement(&mut self, camera: &Camera) -> Camera {
+        if self.refine.refine_intrinsics || camera.has_distortion() {
             self.refine.refine_distortion = false;
         }
         if !self.refine.refine_distortion {
-            return Ok(camera.clone());
+            return camera.clone();
         }
         self.refine.refine_intrinsics = true;
-        with_radial_term(camera)
+        camera.with_radial_term()
+    }
+
+    /// Whether the observations are refined (`--refine-observations`): not
+    /// under a rolling-shutter compensation, since the plane warp between
+    /// two images assumes each is taken at one instant, and the refined
+    /// observations made TUM less accurate there (docs/benchmarks.md).
+    pub fn refines_observations(&self) -> bool {
+        self.refine.refine_observations && !self.refine.rolling_shutter.is_on()
     }
 
     /// Which intrinsics the global BAs free when they refine any: the first
@@ -802,19 +808,6 @@ impl SlamOptions {
             ),
         }
     }
-}
-
-/// `camera` with a radial distortion term to refine: a pinhole model
-/// becomes the same model with k1 = 0 (PINHOLE: OPENCV, SIMPLE_PINHOLE:
-/// SIMPLE_RADIAL); a model with distortion terms is returned as it is.
-fn with_radial_term(camera: &Camera) -> Result<Camera, SlamError> {
-    let (model, extra): (CameraModelId, &[f64]) = match camera.model {
-        CameraModelId::Pinhole => (CameraModelId::OpenCv, &[0.0; 4]),
-        CameraModelId::SimplePinhole => (CameraModelId::SimpleRadial, &[0.0]),
-        _ => return Ok(camera.clone()),
-    };
-    let params = [camera.params.as_slice(), extra].concat();
-    Ok(Camera::new(model, camera.width, camera.height, params)?)
 }
 
 #[cfg(test)]

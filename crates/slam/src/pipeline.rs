@@ -380,7 +380,7 @@ impl Slam {
         events: EventSink,
     ) -> Result<Self, SlamError> {
         opts.validate()?;
-        let camera_opencv = &opts.settle_distortion_refinement(camera_opencv)?;
+        let camera_opencv = &opts.settle_distortion_refinement(camera_opencv);
         let frontend = Arc::new(Frontend::new(&opts.frontend, camera_opencv)?);
         let spill = SpillConfig::temp(record_budget(&opts));
         Ok(Self {
@@ -936,10 +936,7 @@ impl Slam {
             State::Tracking(t) => self.finished.push(t.map),
         }
         let mut finished = std::mem::take(&mut self.finished);
-        // The plane warp between two images assumes each is taken at one
-        // instant: with a rolling shutter compensated, the refined
-        // observations made TUM less accurate (docs/benchmarks.md).
-        if self.opts.refine.refine_observations && self.opts.refine.rolling_shutter.is_on() {
+        if self.opts.refine.refine_observations && !self.opts.refines_observations() {
             let note = "observation refinement skipped: it assumes a global shutter, and a rolling-shutter readout is compensated";
             tracing::warn!("{note}");
             self.stats.notes.push(note.into());
@@ -994,13 +991,11 @@ impl Slam {
         Ok(kept)
     }
 
-    /// Refines the keyframes' observations of `map` when asked (not under a
-    /// rolling-shutter compensation: the plane warp between two images
-    /// assumes each is taken at one instant, and the refined observations
-    /// made TUM less accurate there, docs/benchmarks.md); the tracks'
-    /// templates for the non-keyframes.
+    /// Refines the keyframes' observations of `map` when asked
+    /// ([`SlamOptions::refines_observations`]); the tracks' templates for
+    /// the non-keyframes.
     fn refine_observations(&mut self, map: &mut Mapper) -> Result<Option<TrackTemplates>, SlamError> {
-        if !self.opts.refine.refine_observations || self.opts.refine.rolling_shutter.is_on() {
+        if !self.opts.refines_observations() {
             return Ok(None);
         }
         self.check_interrupt()?;
@@ -1048,15 +1043,15 @@ impl Slam {
         // Every normalised coordinate from the map's final camera.
         map.refresh_all()?;
         let mut loc = map.localize_all(&self.opts, &mut self.timings)?;
-        if tracks.is_some() {
+        // The templates go once the non-keyframes are aligned.
+        if let Some(tracks) = tracks {
             self.check_interrupt()?;
+            if let Some(images) = self.images.as_deref_mut() {
+                let r = map.refine_frame_observations(&mut loc, &tracks, images, &self.opts, &mut self.timings)?;
+                self.stats.refined_observations += r.moved;
+                self.note_unread(&map, "non-keyframes", &r);
+            }
         }
-        if let (Some(tracks), Some(images)) = (&tracks, self.images.as_deref_mut()) {
-            let r = map.refine_frame_observations(&mut loc, tracks, images, &self.opts, &mut self.timings)?;
-            self.stats.refined_observations += r.moved;
-            self.note_unread(&map, "non-keyframes", &r);
-        }
-        drop(tracks);
         let (mut loc, readout) = map.rolling_shutter(loc, &self.opts, &mut self.timings)?;
         if self.opts.refine.refine_all_frames {
             map.refine_with_all_frames(&mut loc.poses, &loc.inliers, &self.opts, &mut self.timings)?;

@@ -414,11 +414,7 @@ impl Mapper {
         let p = timings.time(Stage::GlobalBa, || adjust_global(&mut pinhole, true, &ba))?;
         let mut radial = self.rec.clone();
         if let Some(c) = radial.camera_mut(self.camera_id) {
-            *c = Camera {
-                model: CameraModelId::SimpleRadial,
-                params: [camera.params.as_slice(), &[0.0]].concat(),
-                ..camera
-            };
+            *c = camera.with_radial_term();
         }
         let r = timings.time(Stage::GlobalBa, || adjust_global(&mut radial, true, &ba))?;
         // Residual variance of the pinhole fit: the gain in units of it is

@@ -20,7 +20,9 @@ use colslam_io::exif::{self, ExifFocalKind};
 use colslam_io::{Frame, FrameSource, SourceOptions, open_source};
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
-use std::sync::Arc;
+use colslam_image::Image;
+use std::collections::BTreeMap;
+use std::sync::{Arc, Mutex};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
@@ -31,6 +33,32 @@ pub const DEFAULT_FOCAL_FACTOR: f64 = 1.2;
 /// Frames decoded and extracted ahead of the mapper (bounds the memory the
 /// reader thread can hold: a VGA frame with its features is about 1.2 MB).
 const PREFETCH_FRAMES: usize = 4;
+
+/// Bytes of gray images kept from the run for the refinements that read
+/// frames again after mapping (`--refine-observations`): every sequence of
+/// the suite fits (KITTI's 300 frames are 140 MB), so a short sequence is
+/// decoded once; a longer one reads the frames past the budget again.
+const KEPT_FRAME_BYTES: usize = 256 << 20;
+
+/// Gray images of the first frames the run read, up to [`KEPT_FRAME_BYTES`]
+/// (shared by the run's feeding, which fills it, and [`SourceImages`],
+/// which serves from it).
+#[derive(Default)]
+struct KeptFrames {
+    frames: BTreeMap<usize, Image>,
+    bytes: usize,
+}
+
+impl KeptFrames {
+    /// Keeps frame `index`'s gray image if it fits in the budget.
+    fn keep(&mut self, index: usize, image: &Image) {
+        let bytes = image.width() as usize * image.height() as usize;
+        if self.bytes + bytes <= KEPT_FRAME_BYTES {
+            self.bytes += bytes;
+            self.frames.insert(index, image.to_gray());
+        }
+    }
+}
 
 /// Where the camera comes from. Without any, a camera file beside the input
 /// is used, else the focal length is guessed and refined.
@@ -517,9 +545,15 @@ pub fn run(config: &RunConfig, events: EventSink, mut hooks: RunHooks<'_>) -> Re
     }
     // Records beyond the memory budget spill beside the output: the file
     // system the user chose for it, cleaned up with its staging folder.
+    // Frames are kept only when a refinement will read them again.
+    let kept = slam_opts.refines_observations().then(|| Arc::new(Mutex::new(KeptFrames::default())));
     let mut slam = Slam::new(slam_opts.clone(), &resolved.camera, events)?
         .with_spill(output.scratch_prefix())
-        .with_frame_images(Box::new(SourceImages { input: config.input.clone(), options: opts.source() }));
+        .with_frame_images(Box::new(SourceImages {
+            input: config.input.clone(),
+            options: opts.source(),
+            kept: kept.clone(),
+        }));
     if let Some(flag) = &hooks.interrupt {
         slam.set_interrupt(flag.clone());
     }
@@ -530,7 +564,7 @@ pub fn run(config: &RunConfig, events: EventSink, mut hooks: RunHooks<'_>) -> Re
     if let Some(f) = hooks.on_start.as_mut() {
         f(&RunStart { camera: resolved.camera.clone(), frames: source.len_hint(), description: source.describe() });
     }
-    let fed = feed(&mut slam, prefix, source, &mut hooks)?;
+    let fed = feed(&mut slam, prefix, source, kept.as_deref(), &mut hooks)?;
     // A run that read nothing has nothing to write: empty outputs and a zero
     // exit status would hide that every frame failed.
     if fed.processed == 0 && fed.stopped_after.is_none() {
@@ -553,11 +587,13 @@ pub fn run(config: &RunConfig, events: EventSink, mut hooks: RunHooks<'_>) -> Re
 }
 
 /// The run's input opened again for a second pass over chosen frames
-/// (`--refine-observations`): an image folder reads only those files, a
-/// video is decoded again up to the last.
+/// (`--refine-observations`): frames the run kept are served from memory;
+/// for the others an image folder reads only those files, a video is
+/// decoded again up to the last.
 struct SourceImages {
     input: PathBuf,
     options: SourceOptions,
+    kept: Option<Arc<Mutex<KeptFrames>>>,
 }
 
 impl crate::FrameImages for SourceImages {
@@ -566,10 +602,21 @@ impl crate::FrameImages for SourceImages {
         frames: &[usize],
         visit: &mut dyn FnMut(usize, Result<colslam_image::Image, String>),
     ) -> Result<(), SlamError> {
-        let mut source = open_source(&self.input, &self.options)?;
+        // Opened on the first frame not kept.
+        let mut source = None;
         // The index of the frame the source yields next.
         let mut next = 0;
         for &want in frames {
+            // A poisoned lock (a panic elsewhere) only loses the kept frames.
+            let kept = self.kept.as_ref().and_then(|k| k.lock().ok().and_then(|k| k.frames.get(&want).cloned()));
+            if let Some(image) = kept {
+                visit(want, Ok(image));
+                continue;
+            }
+            let source = match &mut source {
+                Some(s) => s,
+                None => source.insert(open_source(&self.input, &self.options)?),
+            };
             let Some(skip) = want.checked_sub(next) else {
                 visit(want, Err("frames were asked out of order".into()));
                 continue;
@@ -762,6 +809,7 @@ fn feed(
     slam: &mut Slam,
     prefix: Vec<Extracted>,
     mut source: Box<dyn FrameSource>,
+    kept: Option<&Mutex<KeptFrames>>,
     hooks: &mut RunHooks<'_>,
 ) -> Result<Fed, SlamError> {
     let frontend = slam.frontend();
@@ -786,7 +834,7 @@ fn feed(
                 }
             }
         });
-        let fed = consume(slam, prefix.into_iter().chain(rx.iter()), hooks);
+        let fed = consume(slam, prefix.into_iter().chain(rx.iter()), kept, hooks);
         drop(rx);
         producer.join().map_err(|_| SlamError::ReaderPanicked)?;
         fed
@@ -810,6 +858,7 @@ struct Fed {
 fn consume(
     slam: &mut Slam,
     items: impl Iterator<Item = Extracted>,
+    kept: Option<&Mutex<KeptFrames>>,
     hooks: &mut RunHooks<'_>,
 ) -> Result<Fed, SlamError> {
     let mut fed = Fed::default();
@@ -839,6 +888,9 @@ fn consume(
         let in_frame =
             |e: SlamError| SlamError::Frame { index: frame.index, name: frame.name.clone(), source: Box::new(e) };
         slam.process_features(data.map_err(in_frame)?).map_err(in_frame)?;
+        if let Some(mut k) = kept.and_then(|k| k.lock().ok()) {
+            k.keep(frame.index, &frame.image);
+        }
         fed.processed += 1;
         if let Some(f) = hooks.after_frame.as_mut() {
             f(slam);
@@ -910,6 +962,39 @@ mod tests {
         let one_format = files.iter().filter(|f| f.ends_with(".bin") || f.ends_with(".txt")).count() == 5;
         assert!(one_format, "{context}: model files of one run and format: {files:?}");
         n("frames")
+    }
+
+    #[test]
+    fn frames_kept_from_the_run_are_served_from_memory_and_the_rest_read_again() {
+        use crate::FrameImages;
+        let root = tempfile::tempdir().unwrap_or_else(|e| panic!("tempdir: {e}"));
+        let input = sequence(root.path(), 6);
+        let from_disk = |i: usize| {
+            colslam_image::Image::read(&input.join(format!("{i:06}.png"))).unwrap_or_else(|e| panic!("read: {e}")).to_gray()
+        };
+        // Marked copies of frames 1 and 3 (black), so a frame served from
+        // memory is told from one read again.
+        let mut kept = KeptFrames::default();
+        for i in [1, 3] {
+            let mut black = from_disk(i);
+            black.data_mut().fill(0);
+            kept.keep(i, &black);
+        }
+        assert_eq!(kept.bytes, 2 * 160 * 120, "gray bytes counted");
+        let mut images =
+            SourceImages { input: input.clone(), options: SourceOptions::default(), kept: Some(Arc::new(Mutex::new(kept))) };
+        let mut seen = Vec::new();
+        images
+            .read(&[0, 1, 3, 4], &mut |i, image| {
+                let image = image.unwrap_or_else(|e| panic!("frame {i}: {e}"));
+                seen.push((i, image.data().iter().all(|&v| v == 0), image.to_gray() == from_disk(i)));
+            })
+            .unwrap_or_else(|e| panic!("read: {e}"));
+        assert_eq!(seen, [(0, false, true), (1, true, false), (3, true, false), (4, false, true)]);
+        // Past the budget nothing more is kept.
+        let mut full = KeptFrames { bytes: KEPT_FRAME_BYTES, ..KeptFrames::default() };
+        full.keep(0, &from_disk(0));
+        assert!(full.frames.is_empty());
     }
 
     #[test]

@@ -731,14 +731,18 @@ impl SlamOptions {
     /// the first radial term alone, and a camera without one gets it at 0
     /// (the returned camera).
     pub fn settle_distortion_refinement(&mut self, camera: &Camera) -> Camera {
-        if self.refine.refine_intrinsics || camera.has_distortion() {
+        if !self.refines_distortion_of(camera) {
             self.refine.refine_distortion = false;
-        }
-        if !self.refine.refine_distortion {
             return camera.clone();
         }
         self.refine.refine_intrinsics = true;
         camera.with_radial_term()
+    }
+
+    /// Whether `--refine-distortion` acts on `camera`
+    /// ([`Self::settle_distortion_refinement`]).
+    pub fn refines_distortion_of(&self, camera: &Camera) -> bool {
+        self.refine.refine_distortion && !self.refine.refine_intrinsics && !camera.has_distortion()
     }
 
     /// Whether the observations are refined (`--refine-observations`): not

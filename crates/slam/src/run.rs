@@ -536,7 +536,7 @@ pub fn run(config: &RunConfig, events: EventSink, mut hooks: RunHooks<'_>) -> Re
     }
     if slam_opts.refine.refine_intrinsics {
         tracing::info!("intrinsics: refined by bundle adjustment");
-    } else if slam_opts.refine.refine_distortion {
+    } else if slam_opts.refines_distortion_of(&resolved.camera) {
         tracing::info!(
             "intrinsics: focal length kept as given, the first radial distortion term refined (--refine-distortion)"
         );

@@ -1478,3 +1478,15 @@ fn scale_probe_reports_the_keyframe_centres_and_gauge_free_point_statistics() {
 }
 
 mod loops;
+
+#[test]
+fn the_final_ba_loss_is_the_smaller_cauchy_scale() {
+    use super::state::final_ba_loss;
+    use colslam_optim::LossFunction;
+    assert_eq!(final_ba_loss(LossFunction::Trivial, 0.4), LossFunction::Cauchy(0.4));
+    // The intrinsics' 1 px loss gives way to a map error under it, and
+    // holds against one above it.
+    assert_eq!(final_ba_loss(LossFunction::Cauchy(1.0), 0.4), LossFunction::Cauchy(0.4));
+    assert_eq!(final_ba_loss(LossFunction::Cauchy(1.0), 1.3), LossFunction::Cauchy(1.0));
+    assert_eq!(final_ba_loss(LossFunction::SoftL1(1.0), 0.4), LossFunction::SoftL1(1.0));
+}

@@ -15,15 +15,15 @@ use crate::output::{IntrinsicsSummary, OutputFormat, RunReport, begin_run_output
 use crate::pipeline::{Slam, SlamResult};
 use crate::timing::Stage;
 use colslam_camera::{Camera, presets};
+use colslam_image::Image;
 use colslam_image::OutputDir;
 use colslam_io::exif::{self, ExifFocalKind};
 use colslam_io::{Frame, FrameSource, SourceOptions, open_source};
 use serde::{Deserialize, Serialize};
-use std::path::{Path, PathBuf};
-use colslam_image::Image;
 use std::collections::BTreeMap;
-use std::sync::{Arc, Mutex};
+use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 /// Focal length prior for unknown cameras, as a multiple of the larger image
@@ -52,7 +52,7 @@ struct KeptFrames {
 impl KeptFrames {
     /// Keeps frame `index`'s gray image if it fits in the budget.
     fn keep(&mut self, index: usize, image: &Image) {
-        let bytes = image.width() as usize * image.height() as usize;
+        let bytes = image.width() * image.height();
         if self.bytes + bytes <= KEPT_FRAME_BYTES {
             self.bytes += bytes;
             self.frames.insert(index, image.to_gray());
@@ -547,13 +547,10 @@ pub fn run(config: &RunConfig, events: EventSink, mut hooks: RunHooks<'_>) -> Re
     // system the user chose for it, cleaned up with its staging folder.
     // Frames are kept only when a refinement will read them again.
     let kept = slam_opts.refines_observations().then(|| Arc::new(Mutex::new(KeptFrames::default())));
-    let mut slam = Slam::new(slam_opts.clone(), &resolved.camera, events)?
-        .with_spill(output.scratch_prefix())
-        .with_frame_images(Box::new(SourceImages {
-            input: config.input.clone(),
-            options: opts.source(),
-            kept: kept.clone(),
-        }));
+    let mut slam =
+        Slam::new(slam_opts.clone(), &resolved.camera, events)?.with_spill(output.scratch_prefix()).with_frame_images(
+            Box::new(SourceImages { input: config.input.clone(), options: opts.source(), kept: kept.clone() }),
+        );
     if let Some(flag) = &hooks.interrupt {
         slam.set_interrupt(flag.clone());
     }
@@ -970,7 +967,9 @@ mod tests {
         let root = tempfile::tempdir().unwrap_or_else(|e| panic!("tempdir: {e}"));
         let input = sequence(root.path(), 6);
         let from_disk = |i: usize| {
-            colslam_image::Image::read(&input.join(format!("{i:06}.png"))).unwrap_or_else(|e| panic!("read: {e}")).to_gray()
+            colslam_image::Image::read(&input.join(format!("{i:06}.png")))
+                .unwrap_or_else(|e| panic!("read: {e}"))
+                .to_gray()
         };
         // Marked copies of frames 1 and 3 (black), so a frame served from
         // memory is told from one read again.
@@ -981,8 +980,11 @@ mod tests {
             kept.keep(i, &black);
         }
         assert_eq!(kept.bytes, 2 * 160 * 120, "gray bytes counted");
-        let mut images =
-            SourceImages { input: input.clone(), options: SourceOptions::default(), kept: Some(Arc::new(Mutex::new(kept))) };
+        let mut images = SourceImages {
+            input: input.clone(),
+            options: SourceOptions::default(),
+            kept: Some(Arc::new(Mutex::new(kept))),
+        };
         let mut seen = Vec::new();
         images
             .read(&[0, 1, 3, 4], &mut |i, image| {

@@ -412,8 +412,7 @@ impl Mapper {
     pub fn finalize(&mut self, opts: &SlamOptions, timings: &mut StageTimings) -> Result<(), SfmError> {
         self.mapping_ended = true;
         if self.rec.num_registered_images() >= 2 {
-            let tol = if std::env::var("EXP_FINAL").is_ok() && opts.refines_observations() { GlobalBaTolerance::Periodic } else { opts.final_ba_tolerance() };
-            self.global_refine(tol, opts, timings)?;
+            self.global_refine(opts.final_ba_tolerance(), opts, timings)?;
             if opts.refine.refine_intrinsics && opts.refine.estimate_distortion {
                 self.try_radial_distortion(opts, timings)?;
             }

@@ -54,6 +54,9 @@ pub enum RefinedIntrinsics {
     /// The first radial distortion term alone (focal length and principal
     /// point held): a given calibration's residual radial distortion.
     FirstRadial,
+    /// [`Self::Calibration`]'s parameters and the principal point: a
+    /// self-calibration's final BA, once the map carries it.
+    WithPrincipalPoint,
 }
 
 impl BundleOptions {
@@ -104,7 +107,7 @@ pub fn covisible_images(rec: &Reconstruction, image_id: ImageId, min_shared: usi
 /// = k6 = 0); freeing it lets BA trade it against the others, which on TUM
 /// fr1 drove k1 to 26. A camera without any distortion value (a guess)
 /// refines every term of its model. The principal point stays fixed, as in
-/// COLMAP. With [`RefinedIntrinsics::FirstRadial`], the model's first
+/// COLMAP, unless [`RefinedIntrinsics::WithPrincipalPoint`] frees it. With [`RefinedIntrinsics::FirstRadial`], the model's first
 /// radial term alone (none for a model without distortion).
 pub fn refined_intrinsics(camera: &colslam_camera::Camera, which: RefinedIntrinsics) -> IntrinsicsRefinement {
     let model = camera.model;
@@ -119,6 +122,10 @@ pub fn refined_intrinsics(camera: &colslam_camera::Camera, which: RefinedIntrins
     let used: Vec<usize> =
         extras.iter().copied().filter(|&i| camera.params.get(i).is_some_and(|v| *v != 0.0)).collect();
     idx.extend(if used.is_empty() { extras.to_vec() } else { used });
+    if which == RefinedIntrinsics::WithPrincipalPoint {
+        idx.extend_from_slice(model.principal_point_idxs());
+        idx.sort_unstable();
+    }
     IntrinsicsRefinement::Params(idx)
 }
 
@@ -392,6 +399,15 @@ mod tests {
         assert_eq!(
             refined_intrinsics(&radial, RefinedIntrinsics::Calibration),
             IntrinsicsRefinement::Params(vec![0, 3])
+        );
+        // The principal point joins them, in parameter order.
+        assert_eq!(
+            refined_intrinsics(&radial, RefinedIntrinsics::WithPrincipalPoint),
+            IntrinsicsRefinement::Params(vec![0, 1, 2, 3])
+        );
+        assert_eq!(
+            refined_intrinsics(&tum, RefinedIntrinsics::WithPrincipalPoint),
+            IntrinsicsRefinement::Params(vec![0, 1, 2, 3, 4, 5, 6, 7, 8])
         );
     }
 }

@@ -8,7 +8,7 @@ use crate::records::{RecordStore, SpillConfig};
 use crate::timing::{Stage, StageTimings};
 use colslam_camera::{Camera, CameraModelId};
 use colslam_scene::{CameraId, ImageId, Point3DId, Reconstruction, SceneError};
-use colslam_sfm::bundle::{KeypointSigmas, adjust_global};
+use colslam_sfm::bundle::{BundleOptions, KeypointSigmas, RefinedIntrinsics, adjust_global};
 use colslam_sfm::triangulator::complete_and_merge_all;
 use colslam_sfm::{CorrespondenceGraph, SfmError};
 use std::collections::HashMap;
@@ -129,7 +129,11 @@ pub(crate) fn plausible_camera(camera: &Camera) -> bool {
     let side = camera.width.max(camera.height) as f64;
     let focal_ok = [camera.focal_x(), camera.focal_y()].iter().all(|f| (0.1 * side..=10.0 * side).contains(f));
     let extras = camera.model.extra_params_idxs();
-    focal_ok && extras.iter().all(|&i| camera.params.get(i).is_some_and(|v| v.is_finite() && v.abs() <= 1.0))
+    let c = camera.principal_point();
+    let centre_ok = (0.0..=camera.width as f64).contains(&c.x) && (0.0..=camera.height as f64).contains(&c.y);
+    focal_ok
+        && centre_ok
+        && extras.iter().all(|&i| camera.params.get(i).is_some_and(|v| v.is_finite() && v.abs() <= 1.0))
 }
 
 /// Scale between ORB pyramid levels: a keypoint found at octave `o` is
@@ -332,6 +336,26 @@ impl Mapper {
         Ok(d.points_deleted + a.points_deleted + b.points_deleted)
     }
 
+    /// Frees the principal point in `ba` (`--refine-principal-point`) when
+    /// the intrinsics of a camera without distortion terms are refined and
+    /// mapping has ended: the map then carries it. Not with a distortion
+    /// term, estimated or still to be tried (`--estimate-distortion`): the
+    /// two trade (on the synthetic room with a barrel lens the principal
+    /// point ran 26 px off with the radial term, and absorbed the lens to 28
+    /// px off before it). True when freed.
+    fn free_principal_point(&self, ba: &mut BundleOptions, opts: &SlamOptions) -> Result<bool, SceneError> {
+        let free = opts.refine.refine_intrinsics
+            && opts.refine.refine_principal_point
+            && self.mapping_ended
+            && !opts.refine.estimate_distortion
+            && ba.intrinsics == RefinedIntrinsics::Calibration
+            && self.camera()?.model.extra_params_idxs().is_empty();
+        if free {
+            ba.intrinsics = RefinedIntrinsics::WithPrincipalPoint;
+        }
+        Ok(free)
+    }
+
     /// Global refinement (paper 3.6): global bundle adjustment to
     /// `tolerance`, then normalisation, merge/complete of all tracks and
     /// filtering. Resets the growth counters of [`Self::needs_global_refine`].
@@ -351,12 +375,13 @@ impl Mapper {
             ba.ba.max_iterations = ROBUST_FINAL_BA_MAX_ITERATIONS;
         }
         let refine = opts.refine.refine_intrinsics;
+        let frees_centre = tolerance == GlobalBaTolerance::Converged && self.free_principal_point(&mut ba, opts)?;
         self.log_global_probe("before");
         let before = self.focal()?;
         // A residual distortion term that runs away (mismatches of a young
         // map under forward motion pull it along the depth it trades with)
         // is refused: the map goes back and is adjusted with it held.
-        let kept = opts.refine.refine_distortion.then(|| self.rec.clone());
+        let kept = (opts.refine.refine_distortion || frees_centre).then(|| self.rec.clone());
         let mut report = timings.time(Stage::GlobalBa, || adjust_global(&mut self.rec, refine, &ba))?;
         if let Some(kept) = kept
             && !plausible_camera(self.camera()?)

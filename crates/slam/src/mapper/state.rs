@@ -336,17 +336,16 @@ impl Mapper {
         Ok(d.points_deleted + a.points_deleted + b.points_deleted)
     }
 
-    /// Frees the principal point in `ba` (`--refine-principal-point`) when
-    /// the intrinsics of a camera without distortion terms are refined and
-    /// mapping has ended: the map then carries it. Not with a distortion
-    /// term, estimated or still to be tried (`--estimate-distortion`): the
-    /// two trade (on the synthetic room with a barrel lens the principal
-    /// point ran 26 px off with the radial term, and absorbed the lens to 28
-    /// px off before it). True when freed.
+    /// Frees the principal point in `ba`, a final BA (the map then carries
+    /// it), with `--refine-principal-point` when the intrinsics of a camera
+    /// without distortion terms are refined. Not with a distortion term,
+    /// estimated or still to be tried (`--estimate-distortion`): the two
+    /// trade (on the synthetic room with a barrel lens the principal point
+    /// ran 26 px off with the radial term, and absorbed the lens to 28 px
+    /// off before it). True when freed.
     fn free_principal_point(&self, ba: &mut BundleOptions, opts: &SlamOptions) -> Result<bool, SceneError> {
         let free = opts.refine.refine_intrinsics
             && opts.refine.refine_principal_point
-            && self.mapping_ended
             && !opts.refine.estimate_distortion
             && ba.intrinsics == RefinedIntrinsics::Calibration
             && self.camera()?.model.extra_params_idxs().is_empty();
@@ -366,16 +365,17 @@ impl Mapper {
         timings: &mut StageTimings,
     ) -> Result<colslam_optim::BaReport, SfmError> {
         let mut ba = opts.global_ba(tolerance, self.focal_step < FOCAL_SETTLED);
+        // The converged BAs once mapping ended settle the final map.
+        let final_ba = self.mapping_ended && tolerance == GlobalBaTolerance::Converged;
         if opts.refine.robust_final_ba
-            && self.mapping_ended
-            && tolerance == GlobalBaTolerance::Converged
+            && final_ba
             && let Some(scale) = self.median_point_error()?
         {
             ba.ba.loss = final_ba_loss(ba.ba.loss, FINAL_BA_LOSS_SCALE * scale);
             ba.ba.max_iterations = ROBUST_FINAL_BA_MAX_ITERATIONS;
         }
         let refine = opts.refine.refine_intrinsics;
-        let frees_centre = tolerance == GlobalBaTolerance::Converged && self.free_principal_point(&mut ba, opts)?;
+        let frees_centre = final_ba && self.free_principal_point(&mut ba, opts)?;
         self.log_global_probe("before");
         let before = self.focal()?;
         // A residual distortion term that runs away (mismatches of a young

@@ -13,6 +13,8 @@ use colslam_geometry::Vec2;
 use colslam_image::Image;
 use colslam_io::Frame;
 use colslam_xfeat::{LighterGlue, LighterGlueOptions, MnnCosineMatcher, MnnCosineOptions, XFeat, XFeatOptions};
+use std::collections::HashMap;
+use std::sync::Mutex;
 
 /// Feature extraction and matching with the chosen extractor and matcher.
 pub struct Frontend {
@@ -20,7 +22,32 @@ pub struct Frontend {
     matcher: Box<dyn Matcher>,
     /// The camera in COLMAP's pixel convention (as stored in the model).
     camera: Camera,
+    /// Matches kept by frame pair while the pipeline maps
+    /// ([`Frontend::keep_matches`]): matching is the largest stage of
+    /// mapping, a pair's matches do not depend on the camera, and the
+    /// pipeline matches some pairs more than once (a frame with its
+    /// reference keyframe to track it, then again to register it as a
+    /// keyframe; every pair of the first frames when they are mapped again
+    /// under a settled focal length).
+    memo: Mutex<Option<MatchMemo>>,
 }
+
+/// A frame pair: (frame index, features) of the query, then of the train
+/// set. The feature counts guard against two feature sets given the same
+/// frame index.
+type PairKey = (usize, usize, usize, usize);
+
+/// Matches by frame pair, up to [`MATCH_MEMO_BYTES`].
+#[derive(Default)]
+struct MatchMemo {
+    pairs: HashMap<PairKey, Vec<Match>>,
+    bytes: usize,
+}
+
+/// Memory the kept matches may take; once full they are dropped and kept
+/// afresh. A frame pair's ORB matches take a few to tens of kilobytes: a
+/// remap's 120 frames fit, and a long video's memory stays bounded.
+const MATCH_MEMO_BYTES: usize = 32 << 20;
 
 impl std::fmt::Debug for Frontend {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
@@ -53,7 +80,7 @@ impl Frontend {
         let extractor = make_extractor(options, options.features_for(camera_opencv.width, camera_opencv.height))?;
         let matcher = make_matcher(options, camera_opencv)?;
         let camera = camera_opencv.convert_pixel_convention(PixelConvention::OpenCv, PixelConvention::Colmap);
-        Ok(Self { extractor, matcher, camera })
+        Ok(Self { extractor, matcher, camera, memo: Mutex::new(None) })
     }
 
     /// The camera in COLMAP's pixel convention.
@@ -112,7 +139,43 @@ impl Frontend {
         if query.is_empty() || train.is_empty() {
             return Ok(Vec::new());
         }
-        Ok(self.matcher.match_features(&query.features, &train.features)?)
+        let key = (query.index(), query.features.keypoints.len(), train.index(), train.features.keypoints.len());
+        if let Some(kept) = self.with_memo(|memo| memo.pairs.get(&key).cloned()).flatten() {
+            return Ok(kept);
+        }
+
+        let matches = self.matcher.match_features(&query.features, &train.features)?;
+        self.with_memo(|memo| {
+            let bytes = matches.len() * std::mem::size_of::<Match>();
+            if memo.bytes + bytes > MATCH_MEMO_BYTES {
+                *memo = MatchMemo::default();
+            }
+            memo.bytes += bytes;
+            memo.pairs.insert(key, matches.clone());
+        });
+        Ok(matches)
+    }
+
+    /// Keeps the matches of every frame pair from now on, until
+    /// [`Frontend::forget_matches`]: the same pair matched again is then
+    /// served from memory.
+    pub(crate) fn keep_matches(&self) {
+        if let Ok(mut memo) = self.memo.lock() {
+            memo.get_or_insert_with(MatchMemo::default);
+        }
+    }
+
+    /// Drops the kept matches and stops keeping them.
+    pub(crate) fn forget_matches(&self) {
+        if let Ok(mut memo) = self.memo.lock() {
+            *memo = None;
+        }
+    }
+
+    /// `f` on the kept matches, when they are kept (a poisoned lock counts
+    /// as not kept: the memo only saves time).
+    fn with_memo<T>(&self, f: impl FnOnce(&mut MatchMemo) -> T) -> Option<T> {
+        self.memo.lock().ok()?.as_mut().map(f)
     }
 }
 
@@ -184,5 +247,57 @@ fn sample_color(img: &Image, x: f32, y: f32) -> [u8; 3] {
     } else {
         let v = img.get(xi, yi, 0);
         [v, v, v]
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use colslam_synth::{SynthOptions, SyntheticSequence};
+
+    /// Two frames of a small synthetic room and the frontend that extracted
+    /// them.
+    fn two_frames() -> (Frontend, FrameData, FrameData) {
+        let opts = SynthOptions { frames: 2, width: 320, height: 240, focal: 262.5, ..SynthOptions::default() };
+        let seq = SyntheticSequence::new(&opts).unwrap_or_else(|e| panic!("sequence: {e}"));
+        let camera = Camera::simple_pinhole(320, 240, 262.5, 159.5, 119.5);
+        let frontend = Frontend::new(&FrontendOptions::default(), &camera).unwrap_or_else(|e| panic!("frontend: {e}"));
+        let mut frames = (0..2).map(|i| {
+            let image = seq.render(i).unwrap_or_else(|e| panic!("render: {e}"));
+            let frame = Frame { index: i, source_index: i, timestamp: i as f64, name: format!("{i}.png"), image };
+            frontend.process(&frame).unwrap_or_else(|e| panic!("features: {e}"))
+        });
+        let (a, b) = (frames.next().expect("frame 0"), frames.next().expect("frame 1"));
+        (frontend, a, b)
+    }
+
+    fn kept(frontend: &Frontend) -> Option<usize> {
+        frontend.with_memo(|m| m.pairs.len())
+    }
+
+    #[test]
+    fn kept_matches_serve_a_pair_matched_again_until_forgotten() {
+        let (frontend, a, b) = two_frames();
+        let fresh = frontend.match_frames(&a, &b).expect("match");
+        assert!(fresh.len() > 50, "{} matches", fresh.len());
+        assert_eq!(kept(&frontend), None, "nothing kept before keep_matches");
+        frontend.keep_matches();
+        assert_eq!(frontend.match_frames(&a, &b).expect("match"), fresh);
+        assert_eq!(frontend.match_frames(&a, &b).expect("match"), fresh);
+        assert_eq!(kept(&frontend), Some(1), "the pair matched again is served, not kept twice");
+        // The other direction is another pair.
+        frontend.match_frames(&b, &a).expect("match");
+        assert_eq!(kept(&frontend), Some(2));
+        // Another feature set under the same frame index is matched afresh.
+        let mut fewer = a.clone();
+        fewer.features.keypoints.truncate(a.len() / 2);
+        fewer.features.descriptors = keep_rows(&a.features.descriptors, &vec![true; a.len() / 2]);
+        let half = frontend.match_frames(&fewer, &b).expect("match");
+        assert!(half.iter().all(|m| (m.query as usize) < a.len() / 2));
+        assert_eq!(kept(&frontend), Some(3));
+        frontend.forget_matches();
+        assert_eq!(kept(&frontend), None);
+        assert_eq!(frontend.match_frames(&a, &b).expect("match"), fresh);
+        assert_eq!(kept(&frontend), None, "forgotten matches are not kept again");
     }
 }

@@ -232,6 +232,27 @@ const MAX_ORPHANS: usize = 500;
 /// initial pair.
 const MAX_HISTORY: usize = 120;
 
+/// Relative distance between the focal length a first map was made with
+/// (a guess or an estimate) and the one its global BAs settled at, above
+/// which the frames that map covered are mapped again with the settled one
+/// once it fails ([`Slam::remap_camera`]). A map made under a focal length
+/// far off carries its error in every pose and point its later BAs start
+/// from: castle without calibration (guess 33 % long) broke at frame 10 of
+/// 19 with the focal length settled at its true value two keyframes before,
+/// and maps all 19 from that value (docs/benchmarks.md).
+const REMAP_FOCAL_CHANGE: f64 = 0.1;
+
+/// Consecutive frames the first map fails to track (too few matches, or a
+/// keyframe that does not register) before it counts as failing for
+/// [`Slam::remap_camera`]: castle's map made under the guess failed every
+/// frame after its tenth, too few for the 16 lost frames that end a map.
+const REMAP_LOST_FRAMES: usize = 3;
+
+/// Keyframes a first map needs before the focal length it settled at is
+/// trusted for mapping again: fewer do not constrain it (the two-view BA
+/// of an initial pair moves it anywhere under forward motion).
+const REMAP_MIN_KEYFRAMES: usize = 5;
+
 /// After a failed initialisation the window is thinned (to span more time)
 /// until it spans this many initialisation windows; then it slides.
 const MAX_INIT_SPAN_WINDOWS: usize = 4;
@@ -363,6 +384,13 @@ pub struct Slam {
     /// Reads keyframes again for `--refine-observations` (none: that
     /// refinement is skipped).
     images: Option<Box<dyn FrameImages + Send>>,
+    /// The camera to map the first frames again with, set when the first
+    /// map broke far from the focal length it was made with
+    /// ([`Slam::remap_camera`]); taken by [`Slam::process_features`].
+    /// With the note that says so.
+    remap_to: Option<(colslam_camera::Camera, String)>,
+    /// Set once the first frames were mapped again: at most once a run.
+    remapped: bool,
 }
 
 impl std::fmt::Debug for Slam {
@@ -383,6 +411,7 @@ impl Slam {
         let camera_opencv = &opts.settle_distortion_refinement(camera_opencv);
         let frontend = Arc::new(Frontend::new(&opts.frontend, camera_opencv)?);
         let spill = SpillConfig::temp(record_budget(&opts));
+        frontend.keep_matches();
         Ok(Self {
             emitter: Emitter::new(events, opts.mapper.local_ba_images),
             camera: frontend.camera().clone(),
@@ -398,6 +427,8 @@ impl Slam {
             spill,
             interrupt: None,
             images: None,
+            remap_to: None,
+            remapped: false,
         })
     }
 
@@ -519,10 +550,70 @@ impl Slam {
                 if window.len() >= self.opts.init.init_frames {
                     self.try_initialize(false)?;
                 }
-                Ok(())
             }
-            State::Tracking(_) => self.track(data),
+            State::Tracking(_) => self.track(data)?,
         }
+        if let Some((camera, note)) = self.remap_to.take() {
+            self.remap(camera, note)?;
+        }
+        Ok(())
+    }
+
+    /// The camera to map the frames so far again with, and the note that
+    /// says so, when `map`, the run's first, fails to track
+    /// [`REMAP_LOST_FRAMES`] frames in a row up to `frame`: its intrinsics are refined, its focal length
+    /// settled over [`REMAP_MIN_KEYFRAMES`] keyframes or more at a plausible
+    /// value more than [`REMAP_FOCAL_CHANGE`] away from the one it was made
+    /// with, and the history still holds every frame. COLMAP's incremental
+    /// mapper has no such step: its focal prior usually comes from EXIF.
+    fn remap_camera(&self, map: &Mapper, frame: usize) -> Option<(colslam_camera::Camera, String)> {
+        if !self.opts.refine.refine_intrinsics
+            || self.remapped
+            || !self.finished.is_empty()
+            || !self.history_complete()
+            || map.keyframes().len() < REMAP_MIN_KEYFRAMES
+        {
+            return None;
+        }
+        let camera = map.settled_camera()?;
+        let focal = |c: &colslam_camera::Camera| 0.5 * (c.focal_x() + c.focal_y());
+        let (start, settled) = (focal(&self.camera), focal(camera));
+        let change = settled / start - 1.0;
+        let note = format!(
+            "map {} fails at frame {frame} with its focal length settled at {settled:.1} px, {:+.1} % from the \
+             {start:.1} px it was made with: the frames so far are mapped again with it",
+            map.index(),
+            100.0 * change
+        );
+        (change.abs() > REMAP_FOCAL_CHANGE).then(|| (camera.clone(), note))
+    }
+
+    /// True while the history holds every frame so far.
+    fn history_complete(&self) -> bool {
+        self.history.front().map(FrameData::index) == self.frames.first().map(|f| f.index)
+    }
+
+    /// Maps the frames so far again from the start with `camera`, once
+    /// ([`Slam::remap_camera`]): the maps made until now are dropped.
+    fn remap(&mut self, camera: colslam_camera::Camera, note: String) -> Result<(), SlamError> {
+        tracing::warn!("{note}");
+        self.remapped = true;
+        let frames: Vec<FrameData> = std::mem::take(&mut self.history).into();
+        let first = frames.first().map_or(0, FrameData::index);
+        self.camera = camera;
+        self.state = State::Initializing { window: Vec::new() };
+        self.finished.clear();
+        self.orphans.clear();
+        self.frames.clear();
+        let mut notes = std::mem::take(&mut self.stats.notes);
+        notes.push(note);
+        self.stats = RunStats { notes, ..RunStats::default() };
+        let reason = "the frames so far mapped again with the settled focal length".to_string();
+        self.emitter.send(SlamEvent::MapReset { new_map: 0, frame_index: first, reason });
+        for data in frames {
+            self.process_features(data)?;
+        }
+        Ok(())
     }
 
     /// Exhaustive matching in the window and the initial pair search; on
@@ -828,10 +919,17 @@ impl Slam {
             t.pending.push((data.clone(), rec_idx));
         }
         let orphan = untracked.then(|| data.clone());
+        let frame = data.index();
         t.prev = Some((data, matches, rec_idx, kf_id));
         let reset = t.lost > max_lost && !t.backward;
+        let failing = (t.lost >= REMAP_LOST_FRAMES && !t.backward).then_some(frame);
         self.add_orphans(orphan.into_iter().collect());
-        if reset {
+        if let Some(frame) = failing
+            && self.remap_to.is_none()
+        {
+            self.remap_to = self.current_map().and_then(|map| self.remap_camera(map, frame));
+        }
+        if reset && self.remap_to.is_none() {
             self.reset_map();
         }
         Ok(())
@@ -931,6 +1029,15 @@ impl Slam {
         if matches!(self.state, State::Initializing { .. }) {
             self.try_initialize(true)?;
         }
+        // The first map may break in that last attempt's tracking.
+        if let Some((camera, note)) = self.remap_to.take() {
+            self.remap(camera, note)?;
+            if matches!(self.state, State::Initializing { .. }) {
+                self.try_initialize(true)?;
+            }
+        }
+        // Mapping ended: the pairs matched from here on are new.
+        self.frontend.forget_matches();
         match std::mem::replace(&mut self.state, State::Initializing { window: Vec::new() }) {
             State::Initializing { window } => self.add_orphans(window),
             State::Tracking(t) => self.finished.push(t.map),

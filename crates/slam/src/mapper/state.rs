@@ -194,6 +194,15 @@ impl Mapper {
         Ok(0.5 * (c.focal_x() + c.focal_y()))
     }
 
+    /// The camera when its refined focal length has settled (the last
+    /// global BA moved it by less than [`FOCAL_SETTLED`]) and is plausible;
+    /// `None` before the first global BA, while it still moves, or when it
+    /// ran away.
+    pub(crate) fn settled_camera(&self) -> Option<&Camera> {
+        let camera = self.camera().ok()?;
+        (self.focal_step < FOCAL_SETTLED && plausible_camera(camera)).then_some(camera)
+    }
+
     /// Notes that a bundle adjustment may have refined the intrinsics.
     pub(super) fn intrinsics_refined(&mut self, opts: &SlamOptions) {
         if opts.refine.refine_intrinsics {
@@ -393,14 +402,15 @@ impl Mapper {
         self.focal_step = (self.focal()? / before - 1.0).abs();
         self.intrinsics_refined(opts);
         tracing::debug!(
-            "map {}: global BA over {} images / {} points: cost {:.4e} -> {:.4e} in {} iterations ({:?})",
+            "map {}: global BA over {} images / {} points: cost {:.4e} -> {:.4e} in {} iterations ({:?}), focal {:.1} px",
             self.index,
             self.rec.num_registered_images(),
             self.rec.num_points3d(),
             report.initial_cost,
             report.final_cost,
             report.iterations,
-            report.termination
+            report.termination,
+            self.focal()?
         );
         self.rec.normalize(&colslam_scene::NormalizeOptions::default())?;
         let tri = opts.mapper.triangulator();

@@ -169,7 +169,7 @@ fn verified_pair(
     matches: &[Match],
     focal: f64,
     opts: &SlamOptions,
-) -> Option<(Rigid3, Vec<Match>, f64)> {
+) -> Option<(Rigid3, Vec<Match>, f64, bool)> {
     let tvg = two_view(a, b, matches, focal, opts.seed, INIT_TWO_VIEW_TRIALS)?;
     tracing::trace!(
         "init candidate {} / {}: {:?}, {} inliers of {}, median angle {:?}",
@@ -200,7 +200,7 @@ fn verified_pair(
         return None;
     }
     let inliers = matches.iter().zip(&tvg.inlier_mask).filter(|(_, k)| **k).map(|(m, _)| *m).collect();
-    Some((rel, inliers, angle))
+    Some((rel, inliers, angle, tvg.config == TwoViewConfig::Planar))
 }
 
 impl Mapper {
@@ -225,10 +225,12 @@ impl Mapper {
             for second in second_candidates(n, first, pair_matches, opts.init.init_min_inliers) {
                 let (i, j) = if first < second { (first, second) } else { (second, first) };
                 let Some(matches) = pair_matches.get(&(i, j)) else { continue };
-                let Some((rel, inliers, angle)) = verified_pair(&window[i], &window[j], matches, focal, opts) else {
+                let Some((rel, inliers, angle, planar)) = verified_pair(&window[i], &window[j], matches, focal, opts)
+                else {
                     continue;
                 };
-                let map = Self::from_pair(index, (&window[i], &window[j]), &inliers, rel, camera, opts, timings)?;
+                let pair = (&window[i], &window[j]);
+                let map = Self::from_pair(index, pair, &inliers, (rel, planar), camera, opts, timings)?;
                 let points = map.rec.num_points3d();
                 let (a, b) = (window[i].index(), window[j].index());
                 if points >= opts.init.init_min_points {
@@ -244,12 +246,13 @@ impl Mapper {
     }
 
     /// A map of two keyframes: `pair.0` at the origin, `pair.1` at
-    /// `b_from_a`, their inlier matches triangulated and refined globally.
+    /// `b_from_a`, their inlier matches triangulated and refined globally;
+    /// `planar`: the pose came from the pair's homography.
     fn from_pair(
         index: usize,
         pair: (&FrameData, &FrameData),
         inliers: &[Match],
-        b_from_a: Rigid3,
+        (b_from_a, planar): (Rigid3, bool),
         camera: &Camera,
         opts: &SlamOptions,
         timings: &mut StageTimings,
@@ -268,6 +271,7 @@ impl Mapper {
             Keyframe { image_id: ids[1], data: pair.1.clone(), version: 0 },
         ];
         map.initial_frames = (pair.0.index(), pair.1.index());
+        map.planar_start = planar;
         map.global_refine(GlobalBaTolerance::Converged, opts, timings)?;
         Ok(map)
     }
@@ -329,10 +333,10 @@ mod tests {
         assert_eq!(tvg.config, TwoViewConfig::Planar);
         let mut opts = SlamOptions::default();
         opts.init.init_min_tri_angle = 0.5;
-        let (off, _, off_angle) = verified_pair(&a, &b, &m, 300.0, &opts).expect("off: the homography's pose");
+        let (off, _, off_angle, _) = verified_pair(&a, &b, &m, 300.0, &opts).expect("off: the homography's pose");
         assert!(off_axis_deg(&off) > 45.0, "off by default: the swapped pose, {} deg", off_axis_deg(&off));
         opts.init.init_resolve_planar = true;
-        let (on, _, on_angle) = verified_pair(&a, &b, &m, 300.0, &opts).expect("resolved");
+        let (on, _, on_angle, _) = verified_pair(&a, &b, &m, 300.0, &opts).expect("resolved");
         assert!(off_axis_deg(&on) < 3.0, "{} deg off the axis", off_axis_deg(&on));
         assert!(on_angle < off_angle, "the true pose's angle {on_angle} is the smaller (swapped: {off_angle})");
     }

@@ -46,6 +46,9 @@ pub struct Mapper {
     pub(super) records: RecordStore,
     /// Frame indices of the initial pair.
     pub(super) initial_frames: (usize, usize),
+    /// The initial pair's pose came from its homography (a planar scene or
+    /// little baseline), which leaves the focal length free.
+    pub(super) planar_start: bool,
     /// Registered images and points at the last global BA.
     pub(super) last_global: (usize, usize),
     /// Relative change of the focal length in the last global BA (infinite
@@ -73,6 +76,16 @@ pub struct Mapper {
 /// the residuals a focal length far off causes at the image borders would
 /// be taken for outliers and hold it there.
 const FOCAL_SETTLED: f64 = 0.01;
+
+/// Angle (degrees) the map's optical axes must span before its global BAs
+/// refine the intrinsics. Views whose axes are parallel (a pure
+/// translation) leave the focal length free, and nearly parallel ones
+/// barely fix it (Sturm 1997, Kahl et al. 2000: critical motions for the
+/// focal length): kitti_odom00_first300 without calibration, a car
+/// driving straight, ran the guess to 4070 px and kept 43 of 300 frames,
+/// while the Strecha sets' initial pairs, 45-66 degrees apart, move it
+/// towards the calibration's in their two-view BA (docs/benchmarks.md).
+const MIN_AXES_SPREAD_REFINING_FOCAL_DEG: f64 = 5.0;
 
 /// Scale of the Cauchy loss of the final bundle adjustments
 /// (`--robust-final-ba`), in units of the map's median point reprojection
@@ -158,6 +171,7 @@ impl Mapper {
             keyframes: Vec::new(),
             records: RecordStore::default(),
             initial_frames: (0, 0),
+            planar_start: false,
             last_global: (0, 0),
             focal_step: f64::INFINITY,
             sigmas: KeypointSigmas::default(),
@@ -201,6 +215,30 @@ impl Mapper {
     pub(crate) fn settled_camera(&self) -> Option<&Camera> {
         let camera = self.camera().ok()?;
         (self.focal_step < FOCAL_SETTLED && plausible_camera(camera)).then_some(camera)
+    }
+
+    /// Whether the map's views can fix the focal length: their optical axes
+    /// span [`MIN_AXES_SPREAD_REFINING_FOCAL_DEG`], and there are more than
+    /// the two of an initial pair posed by a homography (two views of a
+    /// plane leave it free; the KITTI clip's consecutive frames, whose
+    /// homography gave a wrong pose with axes 7 degrees apart, moved the
+    /// guess of 1490 px to 4391 px).
+    pub(super) fn constrains_focal(&self) -> bool {
+        let two_planar = self.planar_start && self.rec.num_registered_images() < 3;
+        !two_planar && self.axes_spread_deg() >= MIN_AXES_SPREAD_REFINING_FOCAL_DEG
+    }
+
+    /// The largest angle (degrees) between the optical axes of two of the
+    /// map's images.
+    pub(super) fn axes_spread_deg(&self) -> f64 {
+        let axes: Vec<colslam_geometry::Vec3> = (self.rec.registered_image_ids().iter())
+            .filter_map(|&id| self.rec.image(id))
+            .map(|im| im.cam_from_world.rotation.inverse() * colslam_geometry::Vec3::z())
+            .collect();
+        let min_cos = (axes.iter().enumerate())
+            .flat_map(|(k, a)| axes[k + 1..].iter().map(move |b| a.dot(b)))
+            .fold(1.0_f64, f64::min);
+        min_cos.clamp(-1.0, 1.0).acos().to_degrees()
     }
 
     /// Notes that a bundle adjustment may have refined the intrinsics.
@@ -383,7 +421,7 @@ impl Mapper {
             ba.ba.loss = final_ba_loss(ba.ba.loss, FINAL_BA_LOSS_SCALE * scale);
             ba.ba.max_iterations = ROBUST_FINAL_BA_MAX_ITERATIONS;
         }
-        let refine = opts.refine.refine_intrinsics;
+        let refine = opts.refine.refine_intrinsics && self.constrains_focal();
         let frees_centre = final_ba && self.free_principal_point(&mut ba, opts)?;
         self.log_global_probe("before");
         let before = self.focal()?;
@@ -399,7 +437,8 @@ impl Mapper {
             self.rec = kept;
             report = timings.time(Stage::GlobalBa, || adjust_global(&mut self.rec, false, &ba))?;
         }
-        self.focal_step = (self.focal()? / before - 1.0).abs();
+        self.focal_step =
+            if opts.refine.refine_intrinsics && !refine { f64::INFINITY } else { (self.focal()? / before - 1.0).abs() };
         self.intrinsics_refined(opts);
         tracing::debug!(
             "map {}: global BA over {} images / {} points: cost {:.4e} -> {:.4e} in {} iterations ({:?}), focal {:.1} px",

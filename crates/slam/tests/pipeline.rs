@@ -358,6 +358,21 @@ fn wide_baseline_photos_initialise_from_overlapping_pairs() {
     assert!(localized >= 18, "only {localized} of 19 photos localised; notes: {:?}", r.stats.notes);
 }
 
+/// A shared sequence run as a user without its calibration would: the
+/// focal length guessed (`run::DEFAULT_FOCAL_FACTOR` x the larger side,
+/// principal point at the centre) and refined. The folder, the hidden
+/// calibration and the result; `None` when the data are absent.
+fn run_without_calibration(name: &str) -> Option<(std::path::PathBuf, colslam_camera::Camera, SlamResult)> {
+    let (dir, calibrated, frames) = dataset_frames(name)?;
+    let (w, h) = (calibrated.width as u32, calibrated.height as u32);
+    let guess =
+        colslam_slam::calibrate::centred_camera(w, h, colslam_slam::run::DEFAULT_FOCAL_FACTOR * w.max(h) as f64);
+    let mut opts = SlamOptions::default();
+    opts.refine.refine_intrinsics = true;
+    let r = run(&frames, &guess, opts, EventSink::none());
+    Some((dir, calibrated, r))
+}
+
 #[test]
 fn castle_without_calibration_is_mapped_again_with_the_settled_focal_length() {
     // The same photos with the focal length guessed (1.2 x the larger side,
@@ -365,13 +380,7 @@ fn castle_without_calibration_is_mapped_again_with_the_settled_focal_length() {
     // calibration's by its eighth keyframe, but the map made under the
     // guess fails every photo after the tenth (11 of 19 localised). Mapped
     // again from the settled focal length, every photo is localised.
-    let Some((dir, calibrated, frames)) = dataset_frames("strecha_castle_P19") else { return };
-    let (w, h) = (calibrated.width as u32, calibrated.height as u32);
-    let guess =
-        colslam_slam::calibrate::centred_camera(w, h, colslam_slam::run::DEFAULT_FOCAL_FACTOR * w.max(h) as f64);
-    let mut opts = SlamOptions::default();
-    opts.refine.refine_intrinsics = true;
-    let r = run(&frames, &guess, opts, EventSink::none());
+    let Some((dir, calibrated, r)) = run_without_calibration("strecha_castle_P19") else { return };
     assert!(r.stats.notes.iter().any(|n| n.contains("mapped again")), "notes: {:?}", r.stats.notes);
     assert_eq!(r.maps.len(), 1, "notes: {:?}", r.stats.notes);
     assert!(r.maps[0].poses.len() >= 18, "only {} of 19 photos localised", r.maps[0].poses.len());
@@ -390,13 +399,7 @@ fn kitti_without_calibration_holds_the_guess_until_the_car_turns() {
     // calibration's) from them ran it to 4070 px with 43 of 300 frames
     // localised. Held until the keyframes' axes spread, it settles within
     // 3 % of the calibration's and one map holds nearly every frame.
-    let Some((_, calibrated, frames)) = dataset_frames("kitti_odom00_first300") else { return };
-    let (w, h) = (calibrated.width as u32, calibrated.height as u32);
-    let guess =
-        colslam_slam::calibrate::centred_camera(w, h, colslam_slam::run::DEFAULT_FOCAL_FACTOR * w.max(h) as f64);
-    let mut opts = SlamOptions::default();
-    opts.refine.refine_intrinsics = true;
-    let r = run(&frames, &guess, opts, EventSink::none());
+    let Some((_, calibrated, r)) = run_without_calibration("kitti_odom00_first300") else { return };
     assert_eq!(r.maps.len(), 1, "notes: {:?}", r.stats.notes);
     assert!(r.maps[0].poses.len() >= 250, "only {} of 300 frames localised", r.maps[0].poses.len());
     let focal = r.maps[0].map.camera().expect("camera").focal_x();

@@ -77,16 +77,6 @@ pub struct Mapper {
 /// be taken for outliers and hold it there.
 const FOCAL_SETTLED: f64 = 0.01;
 
-/// Angle (degrees) the map's optical axes must span before its global BAs
-/// refine the intrinsics. Views whose axes are parallel (a pure
-/// translation) leave the focal length free, and nearly parallel ones
-/// barely fix it (Sturm 1997, Kahl et al. 2000: critical motions for the
-/// focal length): kitti_odom00_first300 without calibration, a car
-/// driving straight, ran the guess to 4070 px and kept 43 of 300 frames,
-/// while the Strecha sets' initial pairs, 45-66 degrees apart, move it
-/// towards the calibration's in their two-view BA (docs/benchmarks.md).
-const MIN_AXES_SPREAD_REFINING_FOCAL_DEG: f64 = 5.0;
-
 /// Scale of the Cauchy loss of the final bundle adjustments
 /// (`--robust-final-ba`), in units of the map's median point reprojection
 /// error: at the error level itself most observations keep nearly their
@@ -217,28 +207,18 @@ impl Mapper {
         (self.focal_step < FOCAL_SETTLED && plausible_camera(camera)).then_some(camera)
     }
 
-    /// Whether the map's views can fix the focal length: their optical axes
-    /// span [`MIN_AXES_SPREAD_REFINING_FOCAL_DEG`], and there are more than
-    /// the two of an initial pair posed by a homography (two views of a
-    /// plane leave it free; the KITTI clip's consecutive frames, whose
-    /// homography gave a wrong pose with axes 7 degrees apart, moved the
-    /// guess of 1490 px to 4391 px).
+    /// Whether the map's views can fix the focal length: not while it is
+    /// the two images of an initial pair posed by their homography. Two
+    /// views of a plane leave it free (a homography fits any focal length
+    /// with another pose), and so do two views whose optical axes meet
+    /// (Sturm 2001), which a car's level camera gives: the KITTI runs'
+    /// consecutive initial frames ran the guess of 1489 px to 4070 px
+    /// (kitti_odom00_first300) and 4391 px (the clip) in their two-view BA.
+    /// A pair posed by its essential matrix keeps refining it: the Strecha
+    /// sets' and the synthetic room's two-view BAs move the guess most of
+    /// the way to the truth (docs/benchmarks.md).
     pub(super) fn constrains_focal(&self) -> bool {
-        let two_planar = self.planar_start && self.rec.num_registered_images() < 3;
-        !two_planar && self.axes_spread_deg() >= MIN_AXES_SPREAD_REFINING_FOCAL_DEG
-    }
-
-    /// The largest angle (degrees) between the optical axes of two of the
-    /// map's images.
-    pub(super) fn axes_spread_deg(&self) -> f64 {
-        let axes: Vec<colslam_geometry::Vec3> = (self.rec.registered_image_ids().iter())
-            .filter_map(|&id| self.rec.image(id))
-            .map(|im| im.cam_from_world.rotation.inverse() * colslam_geometry::Vec3::z())
-            .collect();
-        let min_cos = (axes.iter().enumerate())
-            .flat_map(|(k, a)| axes[k + 1..].iter().map(move |b| a.dot(b)))
-            .fold(1.0_f64, f64::min);
-        min_cos.clamp(-1.0, 1.0).acos().to_degrees()
+        !(self.planar_start && self.rec.num_registered_images() < 3)
     }
 
     /// Notes that a bundle adjustment may have refined the intrinsics.
@@ -441,7 +421,7 @@ impl Mapper {
             if opts.refine.refine_intrinsics && !refine { f64::INFINITY } else { (self.focal()? / before - 1.0).abs() };
         self.intrinsics_refined(opts);
         tracing::debug!(
-            "map {}: global BA over {} images / {} points: cost {:.4e} -> {:.4e} in {} iterations ({:?}), focal {:.1} px",
+            "map {}: global BA over {} images / {} points: cost {:.4e} -> {:.4e} in {} iterations ({:?}), focal {:.1} px{}",
             self.index,
             self.rec.num_registered_images(),
             self.rec.num_points3d(),
@@ -449,7 +429,8 @@ impl Mapper {
             report.final_cost,
             report.iterations,
             report.termination,
-            self.focal()?
+            self.focal()?,
+            if opts.refine.refine_intrinsics && !refine { " (held: two views posed by a homography)" } else { "" }
         );
         self.rec.normalize(&colslam_scene::NormalizeOptions::default())?;
         let tri = opts.mapper.triangulator();

@@ -576,8 +576,7 @@ impl Slam {
             return None;
         }
         let camera = map.settled_camera()?;
-        let focal = |c: &colslam_camera::Camera| 0.5 * (c.focal_x() + c.focal_y());
-        let (start, settled) = (focal(&self.camera), focal(camera));
+        let (start, settled) = (self.camera.mean_focal(), camera.mean_focal());
         let change = settled / start - 1.0;
         let note = format!(
             "map {} fails at frame {frame} with its focal length settled at {settled:.1} px, {:+.1} % from the \

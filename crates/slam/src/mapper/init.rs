@@ -218,7 +218,7 @@ impl Mapper {
         timings: &mut StageTimings,
     ) -> Result<Option<Initialized>, SfmError> {
         let n = window.len();
-        let focal = 0.5 * (camera.focal_x() + camera.focal_y());
+        let focal = camera.mean_focal();
         // COLMAP tries several first images; two are enough to leave a
         // clearly bad window quickly.
         for first in first_candidates(n, pair_matches).into_iter().take(2) {

@@ -194,8 +194,7 @@ impl Mapper {
 
     /// Mean focal length of the map's camera, pixels.
     pub(crate) fn focal(&self) -> Result<f64, SceneError> {
-        let c = self.camera()?;
-        Ok(0.5 * (c.focal_x() + c.focal_y()))
+        Ok(self.camera()?.mean_focal())
     }
 
     /// The camera when its refined focal length has settled (the last
@@ -401,7 +400,9 @@ impl Mapper {
             ba.ba.loss = final_ba_loss(ba.ba.loss, FINAL_BA_LOSS_SCALE * scale);
             ba.ba.max_iterations = ROBUST_FINAL_BA_MAX_ITERATIONS;
         }
-        let refine = opts.refine.refine_intrinsics && self.constrains_focal();
+        // Held: refined intrinsics the map's views cannot fix yet.
+        let held = opts.refine.refine_intrinsics && !self.constrains_focal();
+        let refine = opts.refine.refine_intrinsics && !held;
         let frees_centre = final_ba && self.free_principal_point(&mut ba, opts)?;
         self.log_global_probe("before");
         let before = self.focal()?;
@@ -417,8 +418,7 @@ impl Mapper {
             self.rec = kept;
             report = timings.time(Stage::GlobalBa, || adjust_global(&mut self.rec, false, &ba))?;
         }
-        self.focal_step =
-            if opts.refine.refine_intrinsics && !refine { f64::INFINITY } else { (self.focal()? / before - 1.0).abs() };
+        self.focal_step = if held { f64::INFINITY } else { (self.focal()? / before - 1.0).abs() };
         self.intrinsics_refined(opts);
         tracing::debug!(
             "map {}: global BA over {} images / {} points: cost {:.4e} -> {:.4e} in {} iterations ({:?}), focal {:.1} px{}",
@@ -430,7 +430,7 @@ impl Mapper {
             report.iterations,
             report.termination,
             self.focal()?,
-            if opts.refine.refine_intrinsics && !refine { " (held: two views posed by a homography)" } else { "" }
+            if held { " (held: two views posed by a homography)" } else { "" }
         );
         self.rec.normalize(&colslam_scene::NormalizeOptions::default())?;
         let tri = opts.mapper.triangulator();

@@ -303,19 +303,93 @@ pub fn adjust_global(
     refine_intrinsics: bool,
     opts: &BundleOptions,
 ) -> Result<BaReport, SfmError> {
-    let reg: Vec<ImageId> = rec.registered_image_ids().to_vec();
+    let points = rec.point3d_ids().into_iter().collect();
+    adjust_bundle(rec, &global_config(rec, points, refine_intrinsics), opts)
+}
+
+/// Every registered image varies, with `points`; the gauge is fixed
+/// through the first two registered images.
+fn global_config(rec: &Reconstruction, points: BTreeSet<Point3DId>, refine_intrinsics: bool) -> BundleConfig {
+    let reg = rec.registered_image_ids();
     let gauge = match (reg.first(), reg.get(1)) {
         (Some(a), Some(b)) => Some((*a, *b)),
         _ => None,
     };
-    let config = BundleConfig {
+    BundleConfig {
         variable_images: reg.iter().copied().collect(),
         constant_images: BTreeSet::new(),
         gauge,
-        variable_points: Some(rec.point3d_ids().into_iter().collect()),
+        variable_points: Some(points),
         refine_intrinsics,
+    }
+}
+
+/// Global bundle adjustment in which only the points seen by at least
+/// `min_track` registered images move the poses and intrinsics; the
+/// shorter tracks are adjusted afterwards with every pose and camera held.
+/// An image with fewer than `min_image_observations` observations of such
+/// points keeps its short tracks in the first adjustment, so that no pose
+/// is left without observations. `min_track` of 2 or less is
+/// [`adjust_global`].
+///
+/// Why: a track of two views checks its observations only along their
+/// epipolar line, so an observation a pixel or two off (a mismatch, a
+/// coarse pyramid level) bends the two poses to fit it, and no reprojection
+/// test catches it afterwards. From three views on the views check each
+/// other. GLOMAP's track establishment (colmap/src/glomap,
+/// `min_num_views_per_track = 3`) keeps tracks of three views and more for
+/// its global positioning and bundle adjustment.
+pub fn adjust_global_long_tracks(
+    rec: &mut Reconstruction,
+    refine_intrinsics: bool,
+    opts: &BundleOptions,
+    min_track: usize,
+    min_image_observations: usize,
+) -> Result<BaReport, SfmError> {
+    let (long, short) = split_by_track_length(rec, min_track, min_image_observations);
+    if short.is_empty() {
+        return adjust_global(rec, refine_intrinsics, opts);
+    }
+    let report = adjust_bundle(rec, &global_config(rec, long, refine_intrinsics), opts)?;
+    let structure = BundleConfig {
+        variable_images: BTreeSet::new(),
+        constant_images: rec.registered_image_ids().iter().copied().collect(),
+        gauge: None,
+        variable_points: Some(short),
+        refine_intrinsics: false,
     };
-    adjust_bundle(rec, &config, opts)
+    adjust_bundle(rec, &structure, opts)?;
+    Ok(report)
+}
+
+/// The points of `rec` seen by at least `min_track` registered images, and
+/// the others; the short tracks of an image with fewer than
+/// `min_image_observations` observations of long ones count as long.
+fn split_by_track_length(
+    rec: &Reconstruction,
+    min_track: usize,
+    min_image_observations: usize,
+) -> (BTreeSet<Point3DId>, BTreeSet<Point3DId>) {
+    let registered = |id: ImageId| rec.image(id).is_some_and(|img| img.registered);
+    let views =
+        |pid: Point3DId| rec.point3d(pid).map_or(0, |p| p.track.iter().filter(|e| registered(e.image_id)).count());
+    let (mut long, mut short): (BTreeSet<Point3DId>, BTreeSet<Point3DId>) =
+        rec.point3d_ids().into_iter().partition(|pid| views(*pid) >= min_track);
+    if short.is_empty() {
+        return (long, short);
+    }
+    for id in rec.registered_image_ids() {
+        let Some(img) = rec.image(*id) else { continue };
+        let observed = img.points2d.iter().filter_map(|p| p.point3d_id);
+        if observed.clone().filter(|pid| long.contains(pid)).count() < min_image_observations {
+            for pid in observed {
+                if short.remove(&pid) {
+                    long.insert(pid);
+                }
+            }
+        }
+    }
+    (long, short)
 }
 
 /// Local bundle adjustment around `image_id`: it and its up to

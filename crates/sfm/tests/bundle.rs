@@ -8,7 +8,8 @@ use colslam_optim::Termination;
 use colslam_scene::{CameraId, ImageId, Point3DId, Reconstruction};
 use colslam_sfm::SfmError;
 use colslam_sfm::bundle::{
-    BundleConfig, BundleOptions, adjust_bundle, adjust_global, adjust_local, most_connected_images,
+    BundleConfig, BundleOptions, adjust_bundle, adjust_global, adjust_global_long_tracks, adjust_local,
+    most_connected_images,
 };
 use common::{Scene, img, look_at, perturb_pose, point_offset};
 use std::collections::{BTreeSet, HashMap};
@@ -282,6 +283,70 @@ fn keypoint_sigmas_weigh_down_an_imprecise_observation() {
     s.rec = start;
     adjust_global(&mut s.rec, false, &weighted).unwrap();
     assert!(others_error(&s.rec) < 1e-3, "{}", others_error(&s.rec));
+}
+
+/// Four images on a line: points 0-39 seen by all, points 40-99 by pairs
+/// of consecutive images with the second image's keypoint 1.5 px off (a
+/// two-view track checks it only along the epipolar line); image 5 sees
+/// only two-view points shared with image 4. Images 3-5 start perturbed.
+fn biased_two_view_scene() -> Scene {
+    let mut s = Scene::line(5, 100);
+    for k in 0..40 {
+        s.add_true_point(k, &[1, 2, 3, 4]);
+    }
+    for k in 40..100 {
+        let a = 1 + (k - 40) % 4;
+        s.add_true_point(k, &[a, a + 1]);
+        s.shift_keypoint(a + 1, k, 1.5, 1.0);
+    }
+    for i in 3..=5 {
+        perturb_image(&mut s, i, 0.3, 0.02);
+    }
+    s
+}
+
+#[test]
+fn two_view_tracks_stay_out_of_the_pose_estimate_of_long_tracks() {
+    let mut s = biased_two_view_scene();
+    let start = s.rec.clone();
+    adjust_global(&mut s.rec, false, &BundleOptions::global()).unwrap();
+    // Every track moves the poses: the biased two-view ones bend them.
+    let bent: f64 = (2..=4).map(|i| centre_error(&s, i)).fold(0.0, f64::max);
+    assert!(bent > 1e-3, "{bent}");
+
+    s.rec = start.clone();
+    let report = adjust_global_long_tracks(&mut s.rec, false, &BundleOptions::global(), 3, 30).unwrap();
+    // Only the 40 long tracks and image 5's 15 two-view points (it has no
+    // long track, so it keeps its short ones) move the poses.
+    assert_eq!(report.num_variable_points, 55);
+    for i in 2..=4 {
+        assert!(centre_error(&s, i) < 1e-6, "image {i} off by {}", centre_error(&s, i));
+    }
+    assert!(centre_error(&s, 5) < 0.05, "image 5 off by {}", centre_error(&s, 5));
+    assert!(centre_error(&s, 5) < start_error(&start, &s, 5), "image 5 was not adjusted");
+    // The short tracks were adjusted to the final poses: each lands between
+    // its two keypoints, about half the 1.8 px offset from each.
+    for k in 40..100 {
+        let pid = s.point_of(1 + (k - 40) % 4, k).unwrap();
+        let xyz = s.rec.point3d(pid).unwrap().xyz;
+        for el in &s.rec.point3d(pid).unwrap().track {
+            let image = s.rec.image(el.image_id).unwrap();
+            let off = (common::pixel(&image.cam_from_world, &xyz) - image.points2d[k as usize].xy).norm();
+            assert!(off < 1.5, "point {k} in image {}: {off} px", el.image_id.0);
+        }
+    }
+
+    // min_track 2 keeps every track: the plain global adjustment.
+    let mut plain = start.clone();
+    adjust_global(&mut plain, false, &BundleOptions::global()).unwrap();
+    s.rec = start;
+    adjust_global_long_tracks(&mut s.rec, false, &BundleOptions::global(), 2, 30).unwrap();
+    assert_eq!(s.rec, plain);
+}
+
+/// Centre error of image `i` in `start`, against the truth of `s`.
+fn start_error(start: &Reconstruction, s: &Scene, i: u32) -> f64 {
+    (start.image(img(i)).unwrap().cam_from_world.center() - s.poses[i as usize - 1].center()).norm()
 }
 
 #[test]

@@ -556,14 +556,19 @@ pub struct RefineOptions {
     ///
     /// The keypoints of a track are detected independently and disagree by the detector's noise; aligning their neighbourhoods makes them agree to a fraction of a pixel (in the spirit of Pixel-Perfect SfM). The keyframes are read again from the input. Skipped with a rolling-shutter readout (`--rolling-shutter`): the warp between two images assumes each was taken at one instant.
     ///
-    /// Off by default: with `--robust-final-ba` it takes the Strecha sets' median ATE to about a third (entry) to two thirds (fountain, herzjesu, castle) and the synthetic keyframes' to a third, but a forward drive (KITTI odometry) drifts more (docs/benchmarks.md, "Observation refinement").
+    /// Off by default: with the two-view tracks out of the final BAs it takes Strecha entry from 1.25 to 0.77 cm, castle and herzjesu by 5-7 % and the synthetic keyframes' ATE to half, fountain is level, and it costs time; a forward drive (KITTI odometry) drifted more with it (docs/benchmarks.md, "Observation refinement", "Two-view tracks out of the final BA").
     #[cfg_attr(feature = "cli", arg(long, value_name = "BOOL", default_value_t = RefineOptions::default().refine_observations, action = clap::ArgAction::Set))]
     pub refine_observations: bool,
     /// Cauchy loss in the final BAs, at the map's median reprojection error.
     ///
-    /// The filter keeps observations up to 4 px off, and under a squared loss the few mismatches among them move the poses along the map's weak directions; a Cauchy loss at the map's own error level lets them count less (docs/benchmarks.md, "Observation refinement"). Without it, the final bundle adjustments use the squared loss, as COLMAP's global BA. Off by default: a forward drive (KITTI odometry) drifts slightly more with it.
+    /// The filter keeps observations up to 4 px off, and under a squared loss the few mismatches among them move the poses along the map's weak directions; a Cauchy loss at the map's own error level lets them count less (docs/benchmarks.md, "Observation refinement"). Without it, the final bundle adjustments use the squared loss, as COLMAP's global BA. Off by default: the mismatches it held down were mostly two-view tracks', which the final BAs now leave out (`--final-ba-min-track`); alone it no longer helps, and after `--refine-observations` it helps the synthetic keyframes only (docs/benchmarks.md, "Two-view tracks out of the final BA").
     #[cfg_attr(feature = "cli", arg(long, value_name = "BOOL", default_value_t = RefineOptions::default().robust_final_ba, action = clap::ArgAction::Set))]
     pub robust_final_ba: bool,
+    /// Points seen by fewer keyframes stay out of the final BAs' pose estimate (2: every point, as COLMAP's incremental mapper).
+    ///
+    /// A point seen twice checks its two observations only along their epipolar line, so a mismatch or a keypoint a pixel or two off bends the two poses to fit it and no reprojection test catches it afterwards; from three views on, the views check each other. The short tracks are adjusted again with the final poses held, and stay in the model. GLOMAP builds its tracks from three views on for the same reason; on Strecha castle the final map's ATE falls by more than half (docs/benchmarks.md, "Two-view tracks out of the final BA"). An image left with fewer than a minimum of longer tracks keeps its short ones, and so does a radial term estimated at the end (`--estimate-distortion`), which the image borders show.
+    #[cfg_attr(feature = "cli", arg(long, value_name = "N", default_value_t = RefineOptions::default().final_ba_min_track))]
+    pub final_ba_min_track: usize,
     /// At the end, match each keyframe with up to N overlapping keyframes it was never matched with (0: off).
     ///
     /// The final poses say which pairs see the same points (a path that comes back, photos around a building); their verified matches join and lengthen the tracks before the final bundle adjustment.
@@ -600,6 +605,7 @@ impl Default for RefineOptions {
             refine_all_frames: false,
             refine_observations: false,
             robust_final_ba: false,
+            final_ba_min_track: 3,
             match_overlapping: 0,
             rolling_shutter: RollingShutter::Seconds(0.0),
             record_memory: RECORD_MEMORY_MIB,

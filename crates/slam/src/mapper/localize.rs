@@ -123,12 +123,29 @@ impl Mapper {
             pids.push(pid);
         }
         if p2.len() < opts.mapper.abs_pose_min_inliers {
+            tracing::trace!("frame {}: not localised: {} 2D-3D correspondences", record.frame.index, p2.len());
             return None;
         }
         let pose_opts = opts.mapper.absolute_pose(focal, opts.seed ^ record.frame.index as u64);
-        let pose = estimate_absolute_pose(&p2, &p3, &pose_opts).ok()?;
-        let inliers =
+        let pose = match estimate_absolute_pose(&p2, &p3, &pose_opts) {
+            Ok(pose) => pose,
+            Err(e) => {
+                tracing::trace!(
+                    "frame {}: not localised from {} 2D-3D correspondences: {e}",
+                    record.frame.index,
+                    p2.len()
+                );
+                return None;
+            }
+        };
+        let inliers: FrameInliers =
             p2.iter().zip(&pids).zip(&pose.inlier_mask).filter(|(_, m)| **m).map(|((n, pid), _)| (*n, *pid)).collect();
+        tracing::trace!(
+            "frame {}: localised, {} of {} 2D-3D correspondences",
+            record.frame.index,
+            inliers.len(),
+            p2.len()
+        );
         let fp = FramePose { frame: record.frame.clone(), cam_from_world: pose.cam_from_world, keyframe: false };
         Some((fp, inliers))
     }

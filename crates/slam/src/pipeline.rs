@@ -232,23 +232,58 @@ const MAX_ORPHANS: usize = 500;
 /// initial pair.
 const MAX_HISTORY: usize = 120;
 
-/// Relative distance between the focal length a first map was made with
+/// Relative distance between the focal length a map was made with
 /// (a guess or an estimate) and the one its global BAs settled at, above
 /// which the frames that map covered are mapped again with the settled one
-/// once it fails ([`Slam::remap_camera`]). A map made under a focal length
+/// once it fails or holds it ([`Slam::remap_camera`]). A map made under a focal length
 /// far off carries its error in every pose and point its later BAs start
 /// from: castle without calibration (guess 33 % long) broke at frame 10 of
 /// 19 with the focal length settled at its true value two keyframes before,
 /// and maps all 19 from that value (docs/benchmarks.md).
 const REMAP_FOCAL_CHANGE: f64 = 0.1;
 
-/// Consecutive frames the first map fails to track (too few matches, or a
+/// Growth of a map (registered images now over those then) over
+/// which the focal length its global BAs refine must stay within
+/// [`REMAP_STABLE_DRIFT`] for the frames so far to be mapped again with it
+/// while the map still tracks ([`Slam::remap_camera`]). One BA that barely
+/// moves it is too weak a test: KITTI's paused at 784 px for three BAs
+/// (16-20 keyframes) on its way from the 1489 px guess to 708 (true ~719),
+/// and a remap there went the wrong way on another seed
+/// (docs/benchmarks.md).
+const REMAP_STABLE_GROWTH: f64 = 1.5;
+
+/// Largest relative change of the focal length over the last
+/// [`REMAP_STABLE_GROWTH`] of a map's growth for it to count as
+/// stable: KITTI's moved by 2.4 % from 24 to 36 keyframes and by under
+/// 1 % after, against 9 % at the pause.
+const REMAP_STABLE_DRIFT: f64 = 0.03;
+
+/// Keyframes a map needs before a stable focal length (not a
+/// failing map) has it mapped again.
+const REMAP_STABLE_MIN_KEYFRAMES: usize = 12;
+
+/// Least [`crate::calibrate::focal_sharpness`] of a map for its
+/// stable focal length to count as constrained by its views: KITTI's
+/// forward stretch held a wrong 1796 px (guess 1489, true ~719) over 10-14
+/// keyframes at a sharpness of 0.010 (0.006 at 22), and the maps whose focal length was
+/// right measured 0.066-0.09 (TUM), 0.11 (KITTI after its turn) and over
+/// 0.5 (Strecha). Above `MIN_SHARPNESS`, the first frames' search
+/// threshold, since a remap drops the map.
+const REMAP_MIN_SHARPNESS: f64 = 0.03;
+
+/// Frames the history keeps while the frames so far may still be mapped again
+/// with a refined focal length ([`Slam::remap_camera`]; [`MAX_HISTORY`]
+/// otherwise): about 80 MB at 0.2 MB each, only for a camera whose
+/// intrinsics are refined.
+const REMAP_HISTORY: usize = 400;
+
+/// Consecutive frames a map fails to track (too few matches, or a
 /// keyframe that does not register) before it counts as failing for
 /// [`Slam::remap_camera`]: castle's map made under the guess failed every
 /// frame after its tenth, too few for the 16 lost frames that end a map.
 const REMAP_LOST_FRAMES: usize = 3;
 
-/// Keyframes a first map needs before the focal length it settled at is
+/// Keyframes a failing map needs before the focal length it settled at is
 /// trusted for mapping again: fewer do not constrain it (the two-view BA
 /// of an initial pair moves it anywhere under forward motion).
 const REMAP_MIN_KEYFRAMES: usize = 5;
@@ -351,6 +386,16 @@ enum State {
     Tracking(Box<Tracking>),
 }
 
+/// Why a map is checked for the frames so far to be mapped again with its refined
+/// focal length ([`Slam::remap_camera`]), at which frame.
+#[derive(Debug, Clone, Copy)]
+enum Remap {
+    /// It fails to track.
+    Failing { frame: usize },
+    /// A periodic global BA refined its focal length.
+    Stable { frame: usize },
+}
+
 /// The pipeline. Feed frames in order with [`Slam::process`] (or
 /// [`Slam::process_features`]), then call [`Slam::finish`]; or let
 /// the driver (`run.rs`) feed it from a source.
@@ -391,6 +436,11 @@ pub struct Slam {
     remap_to: Option<(colslam_camera::Camera, String)>,
     /// Set once the first frames were mapped again: at most once a run.
     remapped: bool,
+    /// The map (index) and its registered images when [`Slam::remap_camera`] last
+    /// measured whether its focal length is constrained: measured again only
+    /// once the map grew by [`REMAP_STABLE_GROWTH`] since (three bundle
+    /// adjustments each time).
+    remap_checked_at: std::cell::Cell<(usize, usize)>,
 }
 
 impl std::fmt::Debug for Slam {
@@ -429,6 +479,7 @@ impl Slam {
             images: None,
             remap_to: None,
             remapped: false,
+            remap_checked_at: std::cell::Cell::new((0, 0)),
         })
     }
 
@@ -540,7 +591,8 @@ impl Slam {
             data.normalize_with(self.camera());
         }
         self.frames.push(data.id.clone());
-        if self.history.len() >= MAX_HISTORY {
+        let max_history = if self.may_remap() { REMAP_HISTORY } else { MAX_HISTORY };
+        while self.history.len() >= max_history {
             self.history.pop_front();
         }
         self.history.push_back(data.clone());
@@ -559,32 +611,83 @@ impl Slam {
         Ok(())
     }
 
+    /// Whether the frames so far may still be mapped again with a refined
+    /// focal length ([`Slam::remap_camera`]): intrinsics refined, no remap
+    /// yet, and the history holds every frame so far.
+    fn may_remap(&self) -> bool {
+        self.opts.refine.refine_intrinsics && !self.remapped && self.history_complete()
+    }
+
     /// The camera to map the frames so far again with, and the note that
-    /// says so, when `map`, the run's first, fails to track
-    /// [`REMAP_LOST_FRAMES`] frames in a row up to `frame`: its intrinsics are refined, its focal length
-    /// settled over [`REMAP_MIN_KEYFRAMES`] keyframes or more at a plausible
-    /// value more than [`REMAP_FOCAL_CHANGE`] away from the one it was made
-    /// with, and the history still holds every frame. COLMAP's incremental
-    /// mapper has no such step: its focal prior usually comes from EXIF.
-    fn remap_camera(&self, map: &Mapper, frame: usize) -> Option<(colslam_camera::Camera, String)> {
-        if !self.opts.refine.refine_intrinsics
-            || self.remapped
-            || !self.finished.is_empty()
-            || !self.history_complete()
-            || map.keyframes().len() < REMAP_MIN_KEYFRAMES
-        {
+    /// says so, when `map` was made with a focal length
+    /// more than [`REMAP_FOCAL_CHANGE`] away from the plausible one its
+    /// global BAs settled at, and either fails to track
+    /// [`REMAP_LOST_FRAMES`] frames in a row up to `frame` (`Remap::Failing`,
+    /// [`REMAP_MIN_KEYFRAMES`] keyframes or more) or kept that focal length
+    /// while it grew by [`REMAP_STABLE_GROWTH`] (`Remap::Stable`,
+    /// [`REMAP_STABLE_MIN_KEYFRAMES`] or more), and the views constrain it
+    /// (a [`crate::calibrate::focal_sharpness`] of [`REMAP_MIN_SHARPNESS`]
+    /// or more, measured once per [`REMAP_STABLE_GROWTH`] of the map): a map
+    /// made under a focal length far off keeps that error in its poses and
+    /// points, which its later BAs start from. Only while [`Slam::may_remap`]. COLMAP's
+    /// incremental mapper has no such step: its focal prior usually comes
+    /// from EXIF.
+    fn remap_camera(&self, map: &Mapper, why: Remap) -> Option<(colslam_camera::Camera, String)> {
+        let min_keyframes = match why {
+            Remap::Failing { .. } => REMAP_MIN_KEYFRAMES,
+            Remap::Stable { .. } => REMAP_STABLE_MIN_KEYFRAMES,
+        };
+        if !self.may_remap() || map.keyframes().len() < min_keyframes {
             return None;
         }
         let camera = map.settled_camera()?;
         let (start, settled) = (self.camera.mean_focal(), camera.mean_focal());
         let change = settled / start - 1.0;
+        if change.abs() <= REMAP_FOCAL_CHANGE {
+            return None;
+        }
+        let images = map.reconstruction().num_registered_images();
+        let what = match why {
+            Remap::Failing { frame } => format!("fails at frame {frame} with its focal length settled"),
+            Remap::Stable { frame } => {
+                if map.focal_drift_since(REMAP_STABLE_GROWTH)? >= REMAP_STABLE_DRIFT {
+                    return None;
+                }
+                format!("kept its focal length while it grew, up to frame {frame},")
+            }
+        };
+        // Settled or stable can also mean unconstrained: under forward
+        // motion the focal length stays wherever the map started it.
+        let checked = match self.remap_checked_at.get() {
+            (index, images) if index == map.index() => images,
+            _ => 0,
+        };
+        if (images as f64) < REMAP_STABLE_GROWTH * checked as f64 {
+            return None;
+        }
+        self.remap_checked_at.set((map.index(), images));
+        let sharpness = match crate::calibrate::focal_sharpness(map.reconstruction(), settled) {
+            Ok(s) => s,
+            Err(e) => {
+                tracing::debug!("map {}: the focal length's sharpness failed: {e}", map.index());
+                return None;
+            }
+        };
+        tracing::debug!(
+            "map {}: focal length {settled:.1} px over {images} images, sharpness {sharpness:.4}",
+            map.index()
+        );
+        if sharpness < REMAP_MIN_SHARPNESS {
+            return None;
+        }
+        let what = format!("{what} (sharpness {sharpness:.3})");
         let note = format!(
-            "map {} fails at frame {frame} with its focal length settled at {settled:.1} px, {:+.1} % from the \
-             {start:.1} px it was made with: the frames so far are mapped again with it",
+            "map {} {what} at {settled:.1} px, {:+.1} % from the {start:.1} px it was made with: the frames so far \
+             are mapped again with it",
             map.index(),
             100.0 * change
         );
-        (change.abs() > REMAP_FOCAL_CHANGE).then(|| (camera.clone(), note))
+        Some((camera.clone(), note))
     }
 
     /// True while the history holds every frame so far.
@@ -926,7 +1029,7 @@ impl Slam {
         if let Some(frame) = failing
             && self.remap_to.is_none()
         {
-            self.remap_to = self.current_map().and_then(|map| self.remap_camera(map, frame));
+            self.remap_to = self.current_map().and_then(|map| self.remap_camera(map, Remap::Failing { frame }));
         }
         if reset && self.remap_to.is_none() {
             self.reset_map();
@@ -983,6 +1086,10 @@ impl Slam {
         // moves): a full snapshot replaces the consumer's copy without it.
         let full = global.is_some() || looped || t.map.culled_keyframes() > culled_before;
         self.emitter.map(&t.map, full);
+        if global.is_some() && self.remap_to.is_none() {
+            let why = Remap::Stable { frame: data.index() };
+            self.remap_to = self.current_map().and_then(|map| self.remap_camera(map, why));
+        }
         Ok(true)
     }
 

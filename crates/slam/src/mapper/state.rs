@@ -54,6 +54,10 @@ pub struct Mapper {
     /// Relative change of the focal length in the last global BA (infinite
     /// before the first): `--robust-intrinsics` waits for it to settle.
     pub(super) focal_step: f64,
+    /// Registered images and focal length after each global BA that
+    /// refined the intrinsics: [`Self::focal_drift_since`] reads how far the
+    /// focal length moved while the map grew.
+    pub(super) focal_trace: Vec<(usize, f64)>,
     /// Keypoint standard deviations (px) of the keyframes, for weighting
     /// bundle adjustment by pyramid level.
     pub(super) sigmas: KeypointSigmas,
@@ -169,6 +173,7 @@ impl Mapper {
             planar_start: false,
             last_global: (0, 0),
             focal_step: f64::INFINITY,
+            focal_trace: Vec::new(),
             sigmas: KeypointSigmas::default(),
             intrinsics_version: 0,
             culled: 0,
@@ -209,6 +214,22 @@ impl Mapper {
     pub(crate) fn settled_camera(&self) -> Option<&Camera> {
         let camera = self.camera().ok()?;
         (self.focal_step < FOCAL_SETTLED && plausible_camera(camera)).then_some(camera)
+    }
+
+    /// The largest relative distance between the focal length now and the
+    /// one each global BA left since the map had `1 / growth` of the
+    /// registered images it has now (the last BA at or below that size
+    /// included); `None` when no BA refined it that early. A focal length
+    /// one BA barely moves can still be on its way: under forward motion
+    /// KITTI's paused at 784 px over 16-20 keyframes and then went to 708
+    /// (true ~719, docs/benchmarks.md). One that stayed put while the map
+    /// grew by half is what the views say.
+    pub(crate) fn focal_drift_since(&self, growth: f64) -> Option<f64> {
+        let &(now_images, now) = self.focal_trace.last()?;
+        let since = now_images as f64 / growth;
+        let start = self.focal_trace.iter().rposition(|&(n, _)| n as f64 <= since)?;
+        let drift = self.focal_trace[start..].iter().map(|&(_, f)| (f / now - 1.0).abs());
+        Some(drift.fold(0.0, f64::max))
     }
 
     /// Whether the map's views can fix the focal length: not while it is
@@ -436,6 +457,9 @@ impl Mapper {
             report = timings.time(Stage::GlobalBa, || adjust(&mut self.rec, false))?;
         }
         self.focal_step = if held { f64::INFINITY } else { (self.focal()? / before - 1.0).abs() };
+        if refine {
+            self.focal_trace.push((self.rec.num_registered_images(), self.focal()?));
+        }
         self.intrinsics_refined(opts);
         tracing::debug!(
             "map {}: global BA over {} images / {} points: cost {:.4e} -> {:.4e} in {} iterations ({:?}), focal {:.1} px{}",

@@ -1509,3 +1509,23 @@ fn two_views_fix_the_focal_length_unless_posed_by_a_homography() {
     registered(&mut map, &scene, 2, &frontend, &o);
     assert!(map.constrains_focal(), "a third view");
 }
+
+#[test]
+fn the_focal_drift_covers_every_bundle_adjustment_since_the_map_was_two_thirds_its_size() {
+    let scene = Scene::translating(6);
+    let (mut map, ..) = initialize(&scene, &[0, 4], &opts()).expect("initialises");
+    assert_eq!(map.focal_drift_since(1.5), None, "no BA refined it yet");
+    // KITTI's path from the guess (docs/benchmarks.md): a pause at 784 px,
+    // then on to 708 and 690.
+    map.focal_trace = vec![(16, 784.7), (18, 784.1), (20, 781.0), (22, 708.1), (24, 705.9)];
+    // 24 / 1.5 = 16: from the BA at 16 images on, the pause included.
+    let drift = map.focal_drift_since(1.5).expect("a BA that early");
+    assert!((drift - (784.7 / 705.9 - 1.0)).abs() < 1e-12, "{drift}");
+    map.focal_trace.extend([(27, 696.1), (30, 695.5), (33, 690.2), (36, 689.5)]);
+    // 36 / 1.5 = 24: from 705.9 on.
+    let drift = map.focal_drift_since(1.5).expect("a BA that early");
+    assert!((drift - (705.9 / 689.5 - 1.0)).abs() < 1e-12, "{drift}");
+    // Without a BA at two thirds of the size or less there is no judging.
+    map.focal_trace = vec![(20, 781.0), (22, 708.1)];
+    assert_eq!(map.focal_drift_since(1.5), None);
+}

@@ -441,6 +441,9 @@ pub struct Slam {
     /// once the map grew by [`REMAP_STABLE_GROWTH`] since (three bundle
     /// adjustments each time).
     remap_checked_at: std::cell::Cell<(usize, usize)>,
+    /// Frames between those the initialisation window takes: 1, doubled
+    /// each time a failed window is thinned, back to 1 once a map starts.
+    init_stride: usize,
 }
 
 impl std::fmt::Debug for Slam {
@@ -480,6 +483,7 @@ impl Slam {
             remap_to: None,
             remapped: false,
             remap_checked_at: std::cell::Cell::new((0, 0)),
+            init_stride: 1,
         })
     }
 
@@ -596,11 +600,18 @@ impl Slam {
             self.history.pop_front();
         }
         self.history.push_back(data.clone());
+        let stride = self.init_stride;
         match &mut self.state {
             State::Initializing { window } => {
-                window.push(data);
-                if window.len() >= self.opts.init.init_frames {
-                    self.try_initialize(false)?;
+                if window.last().is_some_and(|last| data.index() < last.index() + stride) {
+                    // Between the thinned window's frames: relocalised at
+                    // the end, like the frames thinning dropped.
+                    self.add_orphans(vec![data]);
+                } else {
+                    window.push(data);
+                    if window.len() >= self.opts.init.init_frames {
+                        self.try_initialize(false)?;
+                    }
                 }
             }
             State::Tracking(_) => self.track(data)?,
@@ -704,6 +715,7 @@ impl Slam {
         let first = frames.first().map_or(0, FrameData::index);
         self.camera = camera;
         self.state = State::Initializing { window: Vec::new() };
+        self.init_stride = 1;
         self.finished.clear();
         self.orphans.clear();
         self.frames.clear();
@@ -763,10 +775,14 @@ impl Slam {
     }
 
     /// Too little motion in the window (a slow camera): thin it to every
-    /// other frame, so the next attempt spans twice the time with the same
-    /// number of frames. Once it spans [`MAX_INIT_SPAN_WINDOWS`] windows, the
-    /// frames are the problem (blur, a cut, no texture): keep the newest
-    /// half and move on.
+    /// other frame and take only every other new frame from then on
+    /// ([`Slam::init_stride`]), so the next attempt spans twice the time
+    /// with the same number of frames. Thinning the window alone while new
+    /// frames came in at the full rate kept its span under 45 frames, so a
+    /// slow camera never initialised (`colslam demo --frames 1000`). Once it
+    /// spans [`MAX_INIT_SPAN_WINDOWS`] windows, the frames are the problem
+    /// (blur, a cut, no texture): keep the newest half and move on, at the
+    /// same stride.
     fn initialization_failed(&mut self, window: Vec<FrameData>, at_end: bool) {
         let n = window.len();
         let (first, last) = (window[0].index(), window[n - 1].index());
@@ -776,6 +792,7 @@ impl Slam {
         self.stats.notes.push(note);
         let (rest, dropped): (Vec<FrameData>, Vec<FrameData>) =
             if last.saturating_sub(first) < MAX_INIT_SPAN_WINDOWS * self.opts.init.init_frames {
+                self.init_stride *= 2;
                 let (odd, even): (Vec<_>, Vec<_>) = window.into_iter().enumerate().partition(|(k, _)| k % 2 == 1);
                 (odd.into_iter().map(|(_, d)| d).collect(), even.into_iter().map(|(_, d)| d).collect())
             } else {
@@ -804,6 +821,7 @@ impl Slam {
             }
         }
         self.emitter.new_map();
+        self.init_stride = 1;
         self.state = State::Tracking(Box::new(Tracking::new(map)));
         if let State::Tracking(t) = &self.state {
             for id in ids {

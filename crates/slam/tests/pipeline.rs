@@ -346,6 +346,26 @@ fn a_slow_camera_widens_the_initialisation_window() {
 }
 
 #[test]
+fn a_very_slow_camera_initialises_from_a_window_taking_every_few_frames() {
+    // The default path over 1000 frames: thinning the failed window while
+    // new frames came in at the full rate kept it under 45 frames, too
+    // little motion, and no window ever initialised. Taking every other new
+    // frame after each thinning doubles the time it spans.
+    let opts = small_synth(1000, 11);
+    let seq = SyntheticSequence::new(&opts).expect("sequence");
+    let frames = frames_of(&seq, opts.frames, opts.fps);
+    let r = run(&frames, seq.camera(), SlamOptions::default(), EventSink::none());
+    assert_eq!(r.maps.len(), 1, "notes: {:?}", r.stats.notes);
+    let localized = r.maps[0].poses.len();
+    assert!(localized >= 990, "only {localized} of 1000 frames localised; notes: {:?}", r.stats.notes);
+    let ate = evaluate(&gt_trajectory(&seq, opts.frames, opts.fps), &est_trajectory(&r), &EvalOptions::default())
+        .expect("evaluate");
+    let size = seq.scene().room().size();
+    let diagonal = (size[0].powi(2) + size[1].powi(2) + size[2].powi(2)).sqrt();
+    assert!(ate.ate_rmse < 1e-3 * diagonal, "ATE {} m vs scene diagonal {} m", ate.ate_rmse, diagonal);
+}
+
+#[test]
 fn wide_baseline_photos_initialise_from_overlapping_pairs() {
     // Strecha castle-P19: 19 photos around a courtyard; the frames far from
     // the first image share no view with it, so the initial pair must be

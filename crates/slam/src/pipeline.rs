@@ -630,19 +630,21 @@ impl Slam {
     }
 
     /// The camera to map the frames so far again with, and the note that
-    /// says so, when `map` was made with a focal length
-    /// more than [`REMAP_FOCAL_CHANGE`] away from the plausible one its
-    /// global BAs settled at, and either fails to track
-    /// [`REMAP_LOST_FRAMES`] frames in a row up to `frame` (`Remap::Failing`,
-    /// [`REMAP_MIN_KEYFRAMES`] keyframes or more) or kept that focal length
-    /// while it grew by [`REMAP_STABLE_GROWTH`] (`Remap::Stable`,
-    /// [`REMAP_STABLE_MIN_KEYFRAMES`] or more), and the views constrain it
-    /// (a [`crate::calibrate::focal_sharpness`] of [`REMAP_MIN_SHARPNESS`]
-    /// or more, measured once per [`REMAP_STABLE_GROWTH`] of the map): a map
-    /// made under a focal length far off keeps that error in its poses and
-    /// points, which its later BAs start from. Only while [`Slam::may_remap`]. COLMAP's
-    /// incremental mapper has no such step: its focal prior usually comes
-    /// from EXIF.
+    /// says so, when `map` was made with a focal length more than
+    /// [`REMAP_FOCAL_CHANGE`] away from the plausible one its global BAs
+    /// settled at (the last moved it under 1 %), kept that focal length
+    /// while it grew by [`REMAP_STABLE_GROWTH`], its views constrain it (a
+    /// [`crate::calibrate::focal_sharpness`] of [`REMAP_MIN_SHARPNESS`] or
+    /// more, measured once per [`REMAP_STABLE_GROWTH`] of the map), and it
+    /// either has [`REMAP_STABLE_MIN_KEYFRAMES`] keyframes (`Remap::Stable`,
+    /// after a periodic global BA) or fails to track [`REMAP_LOST_FRAMES`]
+    /// frames in a row up to `frame` with [`REMAP_MIN_KEYFRAMES`]
+    /// (`Remap::Failing`): a map made under a focal length far off keeps
+    /// that error in its poses and points, which its later BAs start from.
+    /// A failing map's focal length settled by one BA alone was not enough
+    /// either: KITTI's was still on its way (947 px from the 1489 px guess,
+    /// true ~719). Only while [`Slam::may_remap`]. COLMAP's incremental
+    /// mapper has no such step: its focal prior usually comes from EXIF.
     fn remap_camera(&self, map: &Mapper, why: Remap) -> Option<(colslam_camera::Camera, String)> {
         let min_keyframes = match why {
             Remap::Failing { .. } => REMAP_MIN_KEYFRAMES,
@@ -658,14 +660,12 @@ impl Slam {
             return None;
         }
         let images = map.reconstruction().num_registered_images();
+        if map.focal_drift_since(REMAP_STABLE_GROWTH)? >= REMAP_STABLE_DRIFT {
+            return None;
+        }
         let what = match why {
             Remap::Failing { frame } => format!("fails at frame {frame} with its focal length settled"),
-            Remap::Stable { frame } => {
-                if map.focal_drift_since(REMAP_STABLE_GROWTH)? >= REMAP_STABLE_DRIFT {
-                    return None;
-                }
-                format!("kept its focal length while it grew, up to frame {frame},")
-            }
+            Remap::Stable { frame } => format!("kept its focal length while it grew up to frame {frame}"),
         };
         // Settled or stable can also mean unconstrained: under forward
         // motion the focal length stays wherever the map started it.
@@ -691,10 +691,9 @@ impl Slam {
         if sharpness < REMAP_MIN_SHARPNESS {
             return None;
         }
-        let what = format!("{what} (sharpness {sharpness:.3})");
         let note = format!(
-            "map {} {what} at {settled:.1} px, {:+.1} % from the {start:.1} px it was made with: the frames so far \
-             are mapped again with it",
+            "map {} {what} at {settled:.1} px (sharpness {sharpness:.3}), {:+.1} % from the {start:.1} px it was \
+             made with: the frames so far are mapped again with it",
             map.index(),
             100.0 * change
         );

@@ -3,7 +3,7 @@
 //! panic).
 
 use colslam_eval::trajectory::Trajectory;
-use colslam_eval::{EvalOptions, evaluate};
+use colslam_eval::{EvalOptions, EvalReport, evaluate};
 use colslam_image::Image;
 use colslam_io::Frame;
 use colslam_slam::{EventSink, Slam, SlamEvent, SlamOptions, SlamResult};
@@ -31,6 +31,15 @@ fn run(frames: &[Frame], camera: &colslam_camera::Camera, opts: SlamOptions, eve
         slam.process(f).expect("process");
     }
     slam.finish().expect("finish")
+}
+
+/// The run's ATE against the synthetic ground truth, and the room's
+/// diagonal (m) that the synthetic tests scale their bounds by.
+fn ate_and_room_diagonal(seq: &SyntheticSequence, opts: &SynthOptions, r: &SlamResult) -> (EvalReport, f64) {
+    let ate = evaluate(&gt_trajectory(seq, opts.frames, opts.fps), &est_trajectory(r), &EvalOptions::default())
+        .expect("evaluate");
+    let size = seq.scene().room().size();
+    (ate, (size[0].powi(2) + size[1].powi(2) + size[2].powi(2)).sqrt())
 }
 
 /// A dataset of `$COLSLAM_DATA` in TUM layout: its folder, its camera
@@ -67,10 +76,7 @@ fn synthetic_sequence_is_fully_localised_and_accurate() {
     assert_eq!(r.maps.len(), 1, "notes: {:?}", r.stats.notes);
     assert!(r.not_localized.is_empty(), "not localised: {:?}", r.not_localized);
     assert_eq!(r.maps[0].poses.len(), opts.frames);
-    let ate = evaluate(&gt_trajectory(&seq, opts.frames, opts.fps), &est_trajectory(&r), &EvalOptions::default())
-        .expect("evaluate");
-    let size = seq.scene().room().size();
-    let diagonal = (size[0].powi(2) + size[1].powi(2) + size[2].powi(2)).sqrt();
+    let (ate, diagonal) = ate_and_room_diagonal(&seq, &opts, &r);
     assert!(ate.ate_rmse < 5e-4 * diagonal, "ATE {} m vs scene diagonal {} m", ate.ate_rmse, diagonal);
     // Events arrived, keyframes among them, and the run finished.
     let events: Vec<SlamEvent> = rx.try_iter().collect();
@@ -187,10 +193,7 @@ fn refine_all_frames_puts_every_localised_frame_in_the_model() {
         "every localised frame is an image of the model"
     );
     m.map.reconstruction().check_consistency().expect("consistent model");
-    let ate = evaluate(&gt_trajectory(&seq, opts.frames, opts.fps), &est_trajectory(&r), &EvalOptions::default())
-        .expect("evaluate");
-    let size = seq.scene().room().size();
-    let diagonal = (size[0].powi(2) + size[1].powi(2) + size[2].powi(2)).sqrt();
+    let (ate, diagonal) = ate_and_room_diagonal(&seq, &opts, &r);
     assert!(ate.ate_rmse < 1e-3 * diagonal, "ATE {} m", ate.ate_rmse);
 }
 
@@ -331,10 +334,7 @@ fn a_slow_camera_widens_the_initialisation_window() {
     assert_eq!(r.maps.len(), 1, "notes: {:?}", r.stats.notes);
     let localized = r.maps[0].poses.len();
     assert!(localized >= 297, "only {localized} of 300 frames localised; notes: {:?}", r.stats.notes);
-    let ate = evaluate(&gt_trajectory(&seq, opts.frames, opts.fps), &est_trajectory(&r), &EvalOptions::default())
-        .expect("evaluate");
-    let size = seq.scene().room().size();
-    let diagonal = (size[0].powi(2) + size[1].powi(2) + size[2].powi(2)).sqrt();
+    let (ate, diagonal) = ate_and_room_diagonal(&seq, &opts, &r);
     // 0.1 % of the scene, not the 0.05 % of the VGA default: at 320x240 and
     // a slow camera (9 keyframes over 300 frames) the map's scale drifts
     // from keyframe to keyframe (integer ORB corners at a quarter of the
@@ -358,10 +358,7 @@ fn a_very_slow_camera_initialises_from_a_window_taking_every_few_frames() {
     assert_eq!(r.maps.len(), 1, "notes: {:?}", r.stats.notes);
     let localized = r.maps[0].poses.len();
     assert!(localized >= 990, "only {localized} of 1000 frames localised; notes: {:?}", r.stats.notes);
-    let ate = evaluate(&gt_trajectory(&seq, opts.frames, opts.fps), &est_trajectory(&r), &EvalOptions::default())
-        .expect("evaluate");
-    let size = seq.scene().room().size();
-    let diagonal = (size[0].powi(2) + size[1].powi(2) + size[2].powi(2)).sqrt();
+    let (ate, diagonal) = ate_and_room_diagonal(&seq, &opts, &r);
     assert!(ate.ate_rmse < 1e-3 * diagonal, "ATE {} m vs scene diagonal {} m", ate.ate_rmse, diagonal);
 }
 

@@ -269,7 +269,7 @@ const REMAP_STABLE_MIN_KEYFRAMES: usize = 12;
 /// right measured 0.066-0.09 (TUM), 0.11 (KITTI after its turn) and over
 /// 0.5 (Strecha). Above `MIN_SHARPNESS`, the first frames' search
 /// threshold, since a remap drops the map.
-const REMAP_MIN_SHARPNESS: f64 = 0.03;
+pub(crate) const REMAP_MIN_SHARPNESS: f64 = 0.03;
 
 /// Frames the history keeps while the frames so far may still be mapped again
 /// with a refined focal length ([`Slam::remap_camera`]; [`MAX_HISTORY`]
@@ -810,7 +810,7 @@ impl Slam {
     /// usual.
     fn start_map(&mut self, map: Mapper, window: Vec<FrameData>, i: usize, j: usize) -> Result<(), SlamError> {
         let ids = [map.keyframes()[0].image_id, map.keyframes()[1].image_id];
-        let first_index = window[i].index();
+        let (first_index, second_index) = (window[i].index(), window[j].index());
         let (mut before, mut later) = (Vec::new(), Vec::new());
         for (k, data) in window.into_iter().enumerate() {
             if k > j {
@@ -819,6 +819,17 @@ impl Slam {
                 before.push(data);
             }
         }
+        // The frames a thinned window skipped (`init_stride`) are tracked
+        // with the window's own rather than relocalised at the end: the
+        // history holds them.
+        let skipped = |d: &&FrameData| d.index() > first_index && d.index() != second_index;
+        before.extend(self.history.iter().filter(skipped).filter(|d| d.index() < second_index).cloned());
+        later.extend(self.history.iter().filter(skipped).filter(|d| d.index() > second_index).cloned());
+        later.sort_by_key(FrameData::index);
+        later.dedup_by_key(|d| d.index());
+        let tracked: std::collections::HashSet<usize> =
+            before.iter().chain(&later).map(FrameData::index).filter(|&k| k > first_index).collect();
+        self.orphans.retain(|o| !tracked.contains(&o.index()));
         self.emitter.new_map();
         self.init_stride = 1;
         self.state = State::Tracking(Box::new(Tracking::new(map)));

@@ -604,8 +604,9 @@ impl Slam {
         match &mut self.state {
             State::Initializing { window } => {
                 if window.last().is_some_and(|last| data.index() < last.index() + stride) {
-                    // Between the thinned window's frames: relocalised at
-                    // the end, like the frames thinning dropped.
+                    // Between the thinned window's frames: tracked from the
+                    // history once a map starts (`start_map`), else
+                    // relocalised at the end, like the frames thinning dropped.
                     self.add_orphans(vec![data]);
                 } else {
                     window.push(data);
@@ -819,12 +820,13 @@ impl Slam {
                 before.push(data);
             }
         }
-        // The frames a thinned window skipped (`init_stride`) are tracked
-        // with the window's own rather than relocalised at the end: the
-        // history holds them.
-        let skipped = |d: &&FrameData| d.index() > first_index && d.index() != second_index;
-        before.extend(self.history.iter().filter(skipped).filter(|d| d.index() < second_index).cloned());
-        later.extend(self.history.iter().filter(skipped).filter(|d| d.index() > second_index).cloned());
+        // The history's frames go with the window's: those before the pair
+        // and, between and after its images, the frames a thinned window
+        // skipped (`init_stride`), which then leave the frames to relocalise
+        // at the end. `track_backward` drops the frames both lists hold.
+        let pair = |d: &&FrameData| d.index() == first_index || d.index() == second_index;
+        before.extend(self.history.iter().filter(|d| d.index() < second_index && !pair(d)).cloned());
+        later.extend(self.history.iter().filter(|d| d.index() > second_index).cloned());
         later.sort_by_key(FrameData::index);
         later.dedup_by_key(|d| d.index());
         let tracked: std::collections::HashSet<usize> =
@@ -839,8 +841,6 @@ impl Slam {
             }
             self.emitter.map(&t.map, true);
         }
-        // `track_backward` drops the frames both lists hold.
-        before.extend(self.history.iter().filter(|d| d.index() < first_index).cloned());
         self.track_backward(before)?;
         for data in later {
             self.track(data)?;

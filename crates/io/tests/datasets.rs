@@ -70,7 +70,7 @@ fn strecha_fountain_jpegs() {
 #[test]
 fn kitti984_video() {
     let Some(dir) = colslam_testutil::dataset("twitchslam_kitti984") else { return };
-    if !common::have_ffmpeg() {
+    if !colslam_testutil::have_ffmpeg() {
         return;
     }
     let file = dir.join("test_kitti984.mp4");
@@ -115,7 +115,7 @@ fn kitti984_video() {
 #[test]
 fn kitti984_truncated_copies() {
     let Some(dir) = colslam_testutil::dataset("twitchslam_kitti984") else { return };
-    if !common::have_ffmpeg() {
+    if !colslam_testutil::have_ffmpeg() {
         return;
     }
     let file = dir.join("test_kitti984.mp4");

@@ -14,7 +14,7 @@ fn peak_rss_kib() -> Option<u64> {
 
 #[test]
 fn whole_video_in_constant_memory() {
-    if !common::have_ffmpeg() {
+    if !colslam_testutil::have_ffmpeg() {
         return;
     }
     let dir = tempfile::tempdir().unwrap();

@@ -7,7 +7,8 @@ use std::path::Path;
 use std::time::{Duration, Instant};
 
 use colslam_io::{SourceError, SourceKind, SourceOptions, VideoColor, VideoSource, open_source, probe_source};
-use common::{ffmpeg, have_ffmpeg, testsrc, testsrc_raw};
+use colslam_testutil::have_ffmpeg;
+use common::{ffmpeg, testsrc, testsrc_raw};
 
 /// Lossless RGB (FFV1 in Matroska, which stores no frame count in its header).
 const FFV1_RGB: [&str; 4] = ["-c:v", "ffv1", "-pix_fmt", "bgr0"];

@@ -324,12 +324,12 @@ mod tests {
     }
 
     #[test]
-    fn the_focal_search_finds_the_synthetic_focal_length_from_the_default_guess() {
-        // The guess an uncalibrated run starts from (1.2 x 320 = 384 px) is
-        // 46 % off; the estimate must land within 5 % (the search settles
-        // 3 % long on these 60 frames: the minimum of their bundle
-        // adjustment's cost, not a bias of the search).
-        let start = crate::run::DEFAULT_FOCAL_FACTOR * 320.0;
+    fn the_focal_search_finds_the_synthetic_focal_length_from_a_far_guess() {
+        // COLMAP's prior for photos (1.2 x the larger side, 384 px) is 46 %
+        // off; the estimate must land within 5 % (the search settles 3 %
+        // long on these 60 frames: the minimum of their bundle adjustment's
+        // cost, not a bias of the search).
+        let start = 1.2 * 320.0;
         let frames = synthetic_frames(60, start);
         let e = estimate_focal(&frames, 320, 240, start, &SlamOptions::default())
             .unwrap_or_else(|e| panic!("search: {e}"))

@@ -26,9 +26,21 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
-/// Focal length prior for unknown cameras, as a multiple of the larger image
-/// side (COLMAP's default prior, `default_focal_length_factor` 1.2).
-pub const DEFAULT_FOCAL_FACTOR: f64 = 1.2;
+/// Focal length prior for unknown cameras, as a multiple of the geometric
+/// mean of the image sides, `sqrt(w h)` (see [`guessed_focal`]).
+pub const DEFAULT_FOCAL_FACTOR: f64 = 1.0;
+
+/// The focal length (pixels) an unknown `w` x `h` camera is guessed to
+/// have: [`DEFAULT_FOCAL_FACTOR`] x `sqrt(w h)`, a field of view of 60 deg
+/// across a 4:3 frame and 67 deg across a 16:9 one, as phones, webcams and
+/// drones film. COLMAP's prior for photos, 1.2 x the larger side, reads
+/// a wide crop (a rectified car camera at 3.3:1) as a telephoto: twice
+/// the focal length, where a map made under the guess breaks before the
+/// bundle adjustments can refine it (docs/benchmarks.md, "The focal length
+/// guessed from the image area").
+pub fn guessed_focal(w: f64, h: f64) -> f64 {
+    DEFAULT_FOCAL_FACTOR * (w * h).sqrt()
+}
 
 /// Frames decoded and extracted ahead of the mapper (bounds the memory the
 /// reader thread can hold: a VGA frame with its features is about 1.2 MB).
@@ -80,7 +92,7 @@ pub struct CameraOptions {
     pub focal: Option<f64>,
     /// No calibration: estimate the focal length from the first N frames (0: guess and refine).
     ///
-    /// With 0 the focal length is guessed as 1.2 times the larger image side
+    /// With 0 the focal length is guessed as sqrt(width x height) pixels
     /// and refined by bundle adjustment. Off by default: where the first frames constrain the focal length, refining the guess by bundle
     /// adjustment ends as close and costs less; where they do not (forward motion), the guess is kept fixed.
     #[cfg_attr(feature = "cli", arg(long, value_name = "N", default_value_t = DEFAULT_FOCAL_SEARCH_FRAMES))]
@@ -281,8 +293,8 @@ pub enum CameraSource {
         /// The tags used: `35mm_equivalent` or `focal_plane`.
         tags: String,
     },
-    /// No calibration: the focal length is [`DEFAULT_FOCAL_FACTOR`] times the
-    /// larger image side, refined by bundle adjustment.
+    /// No calibration: the focal length is [`guessed_focal`], refined by
+    /// bundle adjustment.
     Guessed,
     /// No calibration (`--focal-search-frames N`): the focal length
     /// estimated from the first frames ([`crate::calibrate`]), principal
@@ -377,7 +389,7 @@ pub fn resolve_camera(
         });
     }
     let guessed = opts.focal.is_none();
-    let f = opts.focal.unwrap_or(DEFAULT_FOCAL_FACTOR * w.max(h) as f64);
+    let f = opts.focal.unwrap_or_else(|| guessed_focal(w as f64, h as f64));
     let camera = centred(f);
     if guessed && opts.focal_search_frames > 0 {
         tracing::warn!(

@@ -375,15 +375,23 @@ fn wide_baseline_photos_initialise_from_overlapping_pairs() {
     assert!(localized >= 18, "only {localized} of 19 photos localised; notes: {:?}", r.stats.notes);
 }
 
-/// A shared sequence run as a user without its calibration would: the
-/// focal length guessed (`run::DEFAULT_FOCAL_FACTOR` x the larger side,
-/// principal point at the centre) and refined. The folder, the hidden
-/// calibration and the result; `None` when the data are absent.
+/// COLMAP's focal length prior for photos, 1.2 x the larger side: 33-46 %
+/// long on the shared sequences with 4:3 and 3:2 frames and twice the
+/// focal length of a car's 3.3:1 rectified camera, so the runs that start
+/// from it exercise the remap (the run's own guess, `run::guessed_focal`,
+/// starts within 10 % there).
+fn colmap_prior(w: u32, h: u32) -> f64 {
+    1.2 * w.max(h) as f64
+}
+
+/// A shared sequence run without its calibration, from a far guess: the
+/// focal length at [`colmap_prior`], principal point at the centre, and
+/// refined. The folder, the hidden calibration and the result; `None` when
+/// the data are absent.
 fn run_without_calibration(name: &str) -> Option<(std::path::PathBuf, colslam_camera::Camera, SlamResult)> {
     let (dir, calibrated, frames) = dataset_frames(name)?;
     let (w, h) = (calibrated.width as u32, calibrated.height as u32);
-    let guess =
-        colslam_slam::calibrate::centred_camera(w, h, colslam_slam::run::DEFAULT_FOCAL_FACTOR * w.max(h) as f64);
+    let guess = colslam_slam::calibrate::centred_camera(w, h, colmap_prior(w, h));
     let mut opts = SlamOptions::default();
     opts.refine.refine_intrinsics = true;
     let r = run(&frames, &guess, opts, EventSink::none());
@@ -392,8 +400,8 @@ fn run_without_calibration(name: &str) -> Option<(std::path::PathBuf, colslam_ca
 
 #[test]
 fn castle_without_calibration_is_mapped_again_with_the_settled_focal_length() {
-    // The same photos with the focal length guessed (1.2 x the larger side,
-    // 33 % long) and refined: the first map's focal length settles near the
+    // The same photos with the focal length started at COLMAP's prior
+    // (33 % long) and refined: the first map's focal length settles near the
     // calibration's by its eighth keyframe, but the map made under the
     // guess fails every photo after the tenth (11 of 19 localised). Mapped
     // again from the settled focal length, every photo is localised.
@@ -411,8 +419,8 @@ fn castle_without_calibration_is_mapped_again_with_the_settled_focal_length() {
 
 #[test]
 fn kitti_without_calibration_is_mapped_again_once_a_map_constrains_its_focal_length() {
-    // A car driving straight, focal length guessed at 1489 px (twice the
-    // calibration's). Held in two-view homography maps and refined from the
+    // A car driving straight, focal length started at COLMAP's prior,
+    // 1489 px (twice the calibration's). Held in two-view homography maps and refined from the
     // third view on, it ends within 3 % of the calibration's, but the map
     // made under the guess keeps its error (ATE 14-20 m against 0.24
     // calibrated). So the frames so far are mapped again as soon as a
@@ -422,8 +430,7 @@ fn kitti_without_calibration_is_mapped_again_once_a_map_constrains_its_focal_len
     let Some((dir, calibrated, frames)) = dataset_frames("kitti_odom00_first300") else { return };
     let gt = Trajectory::read_tum(&dir.join("groundtruth.txt")).expect("ground truth");
     let (w, h) = (calibrated.width as u32, calibrated.height as u32);
-    let guess =
-        colslam_slam::calibrate::centred_camera(w, h, colslam_slam::run::DEFAULT_FOCAL_FACTOR * w.max(h) as f64);
+    let guess = colslam_slam::calibrate::centred_camera(w, h, colmap_prior(w, h));
     for seed in [0, 2] {
         let mut opts = SlamOptions::default();
         opts.refine.refine_intrinsics = true;
@@ -445,6 +452,35 @@ fn kitti_without_calibration_is_mapped_again_once_a_map_constrains_its_focal_len
         // 0-5 give 0.45-1.01 m. Without any remap: 14-20 m.
         assert!(ate.ate_rmse < 1.5, "seed {seed}: ATE {} m", ate.ate_rmse);
     }
+}
+
+#[test]
+fn the_kitti_clip_without_calibration_is_one_map_from_the_guessed_focal_length() {
+    // A car's 1242 x 375 video (KITTI's raw camera: pycolmap refines its
+    // frames to 707-718 px; twitchslam runs it at 984). Started from COLMAP's prior (1490 px) the
+    // run broke into 2 maps holding 175 of 268 frames and ended at 582 px;
+    // the guess from the image area, 682 px, maps every frame in one map.
+    let Some(dir) = colslam_testutil::dataset("twitchslam_kitti984") else { return };
+    if !colslam_testutil::have_ffmpeg() {
+        return;
+    }
+    let file = dir.join("test_kitti984.mp4");
+    let source = colslam_io::open_source(&file, &colslam_io::SourceOptions::default()).expect("source");
+    let frames: Vec<Frame> = source.map(|f| f.expect("frame")).collect();
+    assert_eq!(frames.len(), 268);
+    let (w, h) = (frames[0].image.width(), frames[0].image.height());
+    let start = colslam_slam::run::guessed_focal(w as f64, h as f64);
+    let guess = colslam_slam::calibrate::centred_camera(w as u32, h as u32, start);
+    let mut opts = SlamOptions::default();
+    opts.refine.refine_intrinsics = true;
+    let r = run(&frames, &guess, opts, EventSink::none());
+    let notes = &r.stats.notes;
+    assert_eq!(r.maps.len(), 1, "notes: {notes:?}");
+    let localized = r.maps[0].poses.len();
+    assert!(localized >= 265, "only {localized} of 268 frames localised; notes: {notes:?}");
+    let focal = r.maps[0].map.camera().expect("camera").focal_x();
+    eprintln!("clip: {localized} frames, focal {start:.1} -> {focal:.1} px");
+    assert!((650.0..=800.0).contains(&focal), "focal length {focal:.1} px");
 }
 
 #[test]
@@ -563,8 +599,8 @@ fn a_refined_camera_is_the_one_every_step_sees() {
 
 #[test]
 fn a_guessed_focal_length_is_refined_to_the_synthetic_one() {
-    // No calibration: the focal length guessed as an uncalibrated run does
-    // (1.2 x the larger side, 46 % long) and refined by the global bundle
+    // No calibration: the focal length started at COLMAP's prior (46 %
+    // long) and refined by the global bundle
     // adjustments. Exact projection, so a converged refinement must land on
     // the true focal length: with a squared loss the few mismatches the map
     // keeps pulled it along its weak direction, and a lens with barrel
@@ -577,7 +613,7 @@ fn a_guessed_focal_length_is_refined_to_the_synthetic_one() {
         let (w, h) = (synth.width, synth.height);
         let seq = SyntheticSequence::new(&synth).expect("sequence");
         let frames = frames_of(&seq, synth.frames, synth.fps);
-        let f0 = colslam_slam::run::DEFAULT_FOCAL_FACTOR * w.max(h) as f64;
+        let f0 = colmap_prior(w as u32, h as u32);
         let (cx, cy) = ((w as f64 - 1.0) / 2.0, (h as f64 - 1.0) / 2.0);
         let guess = colslam_camera::Camera::simple_pinhole(w as u64, h as u64, f0, cx, cy);
         let mut opts = SlamOptions::default();

@@ -111,6 +111,19 @@ fn skip_or_fail(what: &str) {
     eprintln!("SKIPPED: {what}");
 }
 
+/// True when ffmpeg and ffprobe run (the video source needs both); outside
+/// CI a missing ffmpeg skips the video tests with a message, in CI
+/// (`CI=true`) it fails them.
+pub fn have_ffmpeg() -> bool {
+    let ok = ["ffmpeg", "ffprobe"]
+        .iter()
+        .all(|p| Command::new(p).arg("-version").output().map(|o| o.status.success()).unwrap_or(false));
+    if !ok {
+        skip_or_fail("ffmpeg/ffprobe are not installed");
+    }
+    ok
+}
+
 /// The datasets folder ([`find_data_dir`]), or `None` (after printing a skip
 /// message) when absent outside CI.
 pub fn data_dir() -> Option<PathBuf> {

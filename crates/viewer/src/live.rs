@@ -372,7 +372,7 @@ impl Bridge {
             }
             None => {
                 let (w, h) = (self.frame_size.0 as f64, self.frame_size.1 as f64);
-                let f = colslam_slam::run::DEFAULT_FOCAL_FACTOR * w.max(h);
+                let f = colslam_slam::run::guessed_focal(w, h);
                 (w, h, f, f, 0.5 * w, 0.5 * h)
             }
         };

@@ -46,18 +46,6 @@ pub fn jpeg(path: &Path) {
     std::fs::write(path, TINY_JPEG).unwrap();
 }
 
-/// True when ffmpeg and ffprobe run; outside CI a missing ffmpeg skips video tests.
-pub fn have_ffmpeg() -> bool {
-    let ok = ["ffmpeg", "ffprobe"]
-        .iter()
-        .all(|p| Command::new(p).arg("-version").output().map(|o| o.status.success()).unwrap_or(false));
-    if !ok {
-        assert!(!colslam_testutil::in_ci(), "CI=true but ffmpeg/ffprobe are not installed");
-        eprintln!("SKIPPED: ffmpeg/ffprobe not installed");
-    }
-    ok
-}
-
 /// Runs ffmpeg with `args` (quiet, overwrite), panicking on failure.
 pub fn ffmpeg(args: &[&str]) {
     let out = Command::new("ffmpeg").args(["-v", "error", "-y", "-nostdin"]).args(args).output().unwrap();

@@ -419,9 +419,10 @@ fn castle_without_calibration_is_mapped_again_with_the_settled_focal_length() {
 
 #[test]
 fn kitti_without_calibration_is_mapped_again_once_a_map_constrains_its_focal_length() {
-    // A car driving straight, focal length started at COLMAP's prior,
-    // 1489 px (twice the calibration's). Held in two-view homography maps and refined from the
-    // third view on, it ends within 3 % of the calibration's, but the map
+    // A car driving straight, focal length started at COLMAP's prior, 1489
+    // px (twice the calibration's). Held in two-view homography maps and
+    // refined from the third view on, it ends within 3 % of the
+    // calibration's, but the map
     // made under the guess keeps its error (ATE 14-20 m against 0.24
     // calibrated). So the frames so far are mapped again as soon as a
     // map's focal length stays put while the map grows and its views
@@ -457,9 +458,10 @@ fn kitti_without_calibration_is_mapped_again_once_a_map_constrains_its_focal_len
 #[test]
 fn the_kitti_clip_without_calibration_is_one_map_from_the_guessed_focal_length() {
     // A car's 1242 x 375 video (KITTI's raw camera: pycolmap refines its
-    // frames to 707-718 px; twitchslam runs it at 984). Started from COLMAP's prior (1490 px) the
-    // run broke into 2 maps holding 175 of 268 frames and ended at 582 px;
-    // the guess from the image area, 682 px, maps every frame in one map.
+    // frames to 707-718 px; twitchslam runs it at 984). Started from
+    // COLMAP's prior (1490 px) the run broke into 2 maps holding 175 of 268
+    // frames and ended at 582 px; the guess from the image area, 682 px,
+    // maps every frame in one map.
     let Some(dir) = colslam_testutil::dataset("twitchslam_kitti984") else { return };
     if !colslam_testutil::have_ffmpeg() {
         return;
@@ -600,8 +602,8 @@ fn a_refined_camera_is_the_one_every_step_sees() {
 #[test]
 fn a_guessed_focal_length_is_refined_to_the_synthetic_one() {
     // No calibration: the focal length started at COLMAP's prior (46 %
-    // long) and refined by the global bundle
-    // adjustments. Exact projection, so a converged refinement must land on
+    // long) and refined by the global bundle adjustments. Exact
+    // projection, so a converged refinement must land on
     // the true focal length: with a squared loss the few mismatches the map
     // keeps pulled it along its weak direction, and a lens with barrel
     // distortion (k1 -0.1) needs the radial term found at the end.

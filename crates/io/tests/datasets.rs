@@ -69,11 +69,7 @@ fn strecha_fountain_jpegs() {
 
 #[test]
 fn kitti984_video() {
-    let Some(dir) = colslam_testutil::dataset("twitchslam_kitti984") else { return };
-    if !colslam_testutil::have_ffmpeg() {
-        return;
-    }
-    let file = dir.join("test_kitti984.mp4");
+    let Some(file) = colslam_testutil::kitti_clip() else { return };
     let info = probe_source(&file, &SourceOptions::default()).unwrap();
     assert_eq!(info.kind, SourceKind::Video);
     assert_eq!(info.total_source_frames, Some(268));
@@ -114,11 +110,7 @@ fn kitti984_video() {
 
 #[test]
 fn kitti984_truncated_copies() {
-    let Some(dir) = colslam_testutil::dataset("twitchslam_kitti984") else { return };
-    if !colslam_testutil::have_ffmpeg() {
-        return;
-    }
-    let file = dir.join("test_kitti984.mp4");
+    let Some(file) = colslam_testutil::kitti_clip() else { return };
     let bytes = std::fs::read(&file).unwrap();
     let tmp = tempfile::tempdir().unwrap();
     // The first 30 % of the file: its index (moov) is at the end, so ffprobe refuses it.

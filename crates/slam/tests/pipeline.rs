@@ -462,11 +462,7 @@ fn the_kitti_clip_without_calibration_is_one_map_from_the_guessed_focal_length()
     // COLMAP's prior (1490 px) the run broke into 2 maps holding 175 of 268
     // frames and ended at 582 px; the guess from the image area, 682 px,
     // maps every frame in one map.
-    let Some(dir) = colslam_testutil::dataset("twitchslam_kitti984") else { return };
-    if !colslam_testutil::have_ffmpeg() {
-        return;
-    }
-    let file = dir.join("test_kitti984.mp4");
+    let Some(file) = colslam_testutil::kitti_clip() else { return };
     let source = colslam_io::open_source(&file, &colslam_io::SourceOptions::default()).expect("source");
     let frames: Vec<Frame> = source.map(|f| f.expect("frame")).collect();
     assert_eq!(frames.len(), 268);

@@ -124,6 +124,19 @@ pub fn have_ffmpeg() -> bool {
     ok
 }
 
+/// The KITTI clip's dataset folder (twitchslam's street video).
+pub const KITTI_CLIP_FOLDER: &str = "twitchslam_kitti984";
+/// The video inside [`KITTI_CLIP_FOLDER`].
+pub const KITTI_CLIP_VIDEO: &str = "test_kitti984.mp4";
+
+/// The KITTI clip's video file, or `None` (after a skip message, or a
+/// failure in CI) when its dataset or ffmpeg is absent: reading it needs
+/// both.
+pub fn kitti_clip() -> Option<PathBuf> {
+    let dir = dataset(KITTI_CLIP_FOLDER)?;
+    have_ffmpeg().then(|| dir.join(KITTI_CLIP_VIDEO))
+}
+
 /// The datasets folder ([`find_data_dir`]), or `None` (after printing a skip
 /// message) when absent outside CI.
 pub fn data_dir() -> Option<PathBuf> {

@@ -18,9 +18,9 @@ pub const QUICK_STRECHA: &str = "strecha_fountain_P11";
 pub const STRECHA_SEQUENCES: [&str; 4] =
     ["strecha_fountain_P11", "strecha_herzjesu_P25", "strecha_castle_P19", "strecha_entry_P10"];
 /// The KITTI clip: folder and file (no ground truth, camera preset).
-pub const KITTI_FOLDER: &str = "twitchslam_kitti984";
+pub const KITTI_FOLDER: &str = colslam_testutil::KITTI_CLIP_FOLDER;
 /// The video inside [`KITTI_FOLDER`].
-pub const KITTI_VIDEO: &str = "test_kitti984.mp4";
+pub const KITTI_VIDEO: &str = colslam_testutil::KITTI_CLIP_VIDEO;
 /// Camera preset of the KITTI clip (focal 984 px).
 pub const KITTI_PRESET: &str = "kitti-984";
 

@@ -30,6 +30,11 @@
 //! * `readout_s`: the rolling-shutter readout time in seconds (first row to
 //!   last), in [0, 1); colslam writes it beside a run's outputs when the run
 //!   compensated one, so the file reproduces the run.
+//! * `refined_over`: a positive integer, the registered images of the map
+//!   whose bundle adjustments refined these intrinsics; colslam writes it
+//!   when a run refined them (a camera without calibration), and a run given
+//!   the file refines them again from there, its maps holding them until
+//!   they have as many images.
 //!
 //! Every error names the file and the key (see [`CameraError::File`]).
 
@@ -62,6 +67,9 @@ pub struct CameraFile {
     /// Rolling-shutter readout time in seconds, if the file gives
     /// `readout_s`.
     pub readout_s: Option<f64>,
+    /// Registered images of the map that refined these intrinsics, if the
+    /// file gives `refined_over`.
+    pub refined_over: Option<usize>,
     /// Keys present in the file but not used (as written).
     pub unknown_keys: Vec<String>,
 }
@@ -127,12 +135,17 @@ pub fn to_yaml_string(cam: &Camera) -> String {
     s
 }
 
-/// [`to_yaml_string`] followed by the rolling-shutter readout time (the
-/// `readout_s` key) when one was compensated (`readout_s > 0`).
-pub fn to_yaml_string_with_readout(cam: &Camera, readout_s: f64) -> String {
+/// [`to_yaml_string`] followed by what a run adds: the rolling-shutter
+/// readout time (the `readout_s` key) when one was compensated
+/// (`readout_s > 0`), and the registered images the intrinsics were refined
+/// over (`refined_over`) when they were.
+pub fn to_run_yaml_string(cam: &Camera, readout_s: f64, refined_over: Option<usize>) -> String {
     let mut s = to_yaml_string(cam);
     if readout_s > 0.0 {
         s.push_str(&format!("readout_s: {readout_s:?}\n"));
+    }
+    if let Some(n) = refined_over {
+        s.push_str(&format!("refined_over: {n}\n"));
     }
     s
 }
@@ -425,6 +438,10 @@ impl Parser {
             }
             None => None,
         };
+        let refined_over = match self.raw("refined_over") {
+            Some(_) => Some(self.size(&["refined_over"])? as usize),
+            None => None,
+        };
 
         // PINHOLE plus non-zero distortion keys is a radial-tangential camera.
         let spec = if spec == ModelSpec::Colmap(CameraModelId::Pinhole) && !self.entries.contains_key("params") {
@@ -511,7 +528,7 @@ impl Parser {
         camera.validate().map_err(|e| file_error_from_validation(&self.path, e, &written))?;
         let unknown_keys =
             self.entries.iter().filter(|(k, _)| !self.used.contains(*k)).map(|(_, e)| e.key.clone()).collect();
-        Ok(CameraFile { camera, format: self.format, fps, readout_s, unknown_keys })
+        Ok(CameraFile { camera, format: self.format, fps, readout_s, refined_over, unknown_keys })
     }
 
     /// Parses `[a, b, c]` (or a bare comma/space separated list).

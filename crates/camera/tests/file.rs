@@ -265,16 +265,32 @@ fn euroc_kalibr_sensor_yaml() {
 }
 
 #[test]
+fn refined_over_round_trip_and_range() {
+    let dir = tempfile::tempdir().unwrap();
+    let cam = Camera::pinhole(640, 480, 500.0, 500.0, 320.0, 240.0);
+    // A run that refined the intrinsics says over how many images.
+    let text = colslam_camera::file::to_run_yaml_string(&cam, 0.0, Some(79));
+    let rep = read_camera_file_report(&write(dir.path(), "r.yaml", &text)).unwrap();
+    assert_eq!((rep.camera, rep.refined_over, rep.readout_s), (cam.clone(), Some(79), None));
+    assert!(rep.unknown_keys.is_empty(), "{:?}", rep.unknown_keys);
+    let text = colslam_camera::file::to_run_yaml_string(&cam, 0.0, None);
+    assert!(!text.contains("refined_over"), "{text}");
+    assert_eq!(read_camera_file_report(&write(dir.path(), "c.yaml", &text)).unwrap().refined_over, None);
+    check_error(&format!("{GOOD}refined_over: 0\n"), "refined_over", "positive integer");
+    check_error(&format!("{GOOD}refined_over: 2.5\n"), "refined_over", "positive integer");
+}
+
+#[test]
 fn readout_time_round_trip_and_range() {
     let dir = tempfile::tempdir().unwrap();
     let cam = Camera::pinhole(640, 480, 500.0, 500.0, 320.0, 240.0);
     // A run that compensated a readout writes it; the file gives it back.
-    let text = colslam_camera::file::to_yaml_string_with_readout(&cam, 0.0333);
+    let text = colslam_camera::file::to_run_yaml_string(&cam, 0.0333, None);
     let rep = read_camera_file_report(&write(dir.path(), "rs.yaml", &text)).unwrap();
     assert_eq!((rep.camera, rep.readout_s), (cam.clone(), Some(0.0333)));
     assert!(rep.unknown_keys.is_empty(), "{:?}", rep.unknown_keys);
     // A global-shutter run writes no readout.
-    let text = colslam_camera::file::to_yaml_string_with_readout(&cam, 0.0);
+    let text = colslam_camera::file::to_run_yaml_string(&cam, 0.0, None);
     assert!(!text.contains("readout"), "{text}");
     let rep = read_camera_file_report(&write(dir.path(), "gs.yaml", &text)).unwrap();
     assert_eq!(rep.readout_s, None);

@@ -16,7 +16,7 @@ use crate::options::SlamOptions;
 use crate::pipeline::{MapResult, SlamResult};
 use crate::timing::StageTimings;
 use colslam_camera::PixelConvention;
-use colslam_camera::file::to_yaml_string_with_readout;
+use colslam_camera::file::to_run_yaml_string;
 use colslam_eval::trajectory::Trajectory;
 use colslam_image::OutputDir;
 use colslam_scene::{MODEL_FILE_NAMES, ModelFormat, write_model_files, write_ply};
@@ -234,14 +234,17 @@ fn create_dir(dir: &Path) -> Result<(), SlamError> {
 /// Writes the camera the run ended with (refined when intrinsics were, with
 /// the readout its rolling-shutter compensation used) as `camera.yaml`, a
 /// camera file that `--camera` reads back (OpenCV's pixel convention);
-/// nothing without a map.
-fn write_camera_file(result: &SlamResult, out: &Path) -> Result<(), SlamError> {
+/// nothing without a map. Refined intrinsics say over how many registered
+/// images (`refined_over`), so that a run given the file refines them
+/// again as this one did, from where it ended.
+fn write_camera_file(result: &SlamResult, opts: &SlamOptions, out: &Path) -> Result<(), SlamError> {
     let Some((map, camera)) = result.maps.first().and_then(|m| m.map.camera().ok().map(|c| (m, c))) else {
         return Ok(());
     };
     let opencv = camera.convert_pixel_convention(PixelConvention::Colmap, PixelConvention::OpenCv);
     let path = out.join("camera.yaml");
-    let text = to_yaml_string_with_readout(&opencv, map.readout_s);
+    let refined_over = opts.refine.refine_intrinsics.then(|| map.map.reconstruction().num_registered_images());
+    let text = to_run_yaml_string(&opencv, map.readout_s, refined_over);
     colslam_image::write_atomic(&path, text.as_bytes()).map_err(|source| SlamError::Io { path, source })
 }
 
@@ -299,7 +302,7 @@ pub fn write_outputs(
         Trajectory::default().write_tum(&out.join("trajectory.tum"))?;
         Trajectory::default().write_tum(&out.join("keyframes.tum"))?;
     }
-    write_camera_file(result, out)?;
+    write_camera_file(result, opts, out)?;
     let maps: Vec<MapSummary> = result.maps.iter().map(summarize).collect();
     let first = maps.first();
     let camera = camera_summary(result, opts);

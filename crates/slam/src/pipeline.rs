@@ -223,6 +223,16 @@ const PARALLAX_SAFE_MATCHES: usize = 2;
 /// to it as well, then dropped). Bounds memory on long static stretches.
 const MAX_PENDING_FRAMES: usize = 60;
 
+/// The camera to map the frames so far again with ([`Slam::remap_camera`]).
+struct RemapTo {
+    /// The settled camera.
+    camera: colslam_camera::Camera,
+    /// Registered images of the map it settled in.
+    support: usize,
+    /// The note that says so.
+    note: String,
+}
+
 /// Frames kept for relocalisation at the end (those no map tracked when they
 /// came); bounds memory on long failures (about 0.2 MB per frame).
 const MAX_ORPHANS: usize = 500;
@@ -409,6 +419,11 @@ pub struct Slam {
     /// refined. The tracked map's reconstruction owns the camera while it
     /// lives ([`Slam::camera`]).
     camera: colslam_camera::Camera,
+    /// Registered images of the map [`Slam::camera`]'s focal length was
+    /// settled in, once the frames were mapped again with it or as a camera
+    /// file says (0 for a guess or a calibration): a new map holds its
+    /// intrinsics until it has as many ([`Mapper::initialize`]).
+    camera_support: usize,
     emitter: Emitter,
     state: State,
     finished: Vec<Mapper>,
@@ -433,7 +448,7 @@ pub struct Slam {
     /// map broke far from the focal length it was made with
     /// ([`Slam::remap_camera`]); taken by [`Slam::process_features`].
     /// With the note that says so.
-    remap_to: Option<(colslam_camera::Camera, String)>,
+    remap_to: Option<RemapTo>,
     /// Set once the first frames were mapped again: at most once a run.
     remapped: bool,
     /// The map (index) and its registered images when [`Slam::remap_camera`] last
@@ -468,6 +483,7 @@ impl Slam {
         Ok(Self {
             emitter: Emitter::new(events, opts.mapper.local_ba_images),
             camera: frontend.camera().clone(),
+            camera_support: 0,
             opts,
             frontend,
             state: State::Initializing { window: Vec::new() },
@@ -492,6 +508,14 @@ impl Slam {
     /// are skipped.
     pub fn with_frame_images(mut self, images: Box<dyn FrameImages + Send>) -> Self {
         self.images = Some(images);
+        self
+    }
+
+    /// Maps hold the camera's intrinsics, refined ones included, until they
+    /// have `images` registered images: the camera was refined over as many
+    /// in an earlier run (a camera file's `refined_over`).
+    pub fn with_camera_support(mut self, images: usize) -> Self {
+        self.camera_support = images;
         self
     }
 
@@ -617,8 +641,8 @@ impl Slam {
             }
             State::Tracking(_) => self.track(data)?,
         }
-        if let Some((camera, note)) = self.remap_to.take() {
-            self.remap(camera, note)?;
+        if let Some(to) = self.remap_to.take() {
+            self.remap(to)?;
         }
         Ok(())
     }
@@ -646,7 +670,7 @@ impl Slam {
     /// either: KITTI's was still on its way (947 px from the 1489 px guess,
     /// true ~719). Only while [`Slam::may_remap`]. COLMAP's incremental
     /// mapper has no such step: its focal prior usually comes from EXIF.
-    fn remap_camera(&self, map: &Mapper, why: Remap) -> Option<(colslam_camera::Camera, String)> {
+    fn remap_camera(&self, map: &Mapper, why: Remap) -> Option<RemapTo> {
         let min_keyframes = match why {
             Remap::Failing { .. } => REMAP_MIN_KEYFRAMES,
             Remap::Stable { .. } => REMAP_STABLE_MIN_KEYFRAMES,
@@ -698,7 +722,7 @@ impl Slam {
             map.index(),
             100.0 * change
         );
-        Some((camera.clone(), note))
+        Some(RemapTo { camera: camera.clone(), support: images, note })
     }
 
     /// True while the history holds every frame so far.
@@ -708,12 +732,13 @@ impl Slam {
 
     /// Maps the frames so far again from the start with `camera`, once
     /// ([`Slam::remap_camera`]): the maps made until now are dropped.
-    fn remap(&mut self, camera: colslam_camera::Camera, note: String) -> Result<(), SlamError> {
+    fn remap(&mut self, RemapTo { camera, support, note }: RemapTo) -> Result<(), SlamError> {
         tracing::warn!("{note}");
         self.remapped = true;
         let frames: Vec<FrameData> = std::mem::take(&mut self.history).into();
         let first = frames.first().map_or(0, FrameData::index);
         self.camera = camera;
+        self.camera_support = support;
         self.state = State::Initializing { window: Vec::new() };
         self.init_stride = 1;
         self.finished.clear();
@@ -748,7 +773,8 @@ impl Slam {
         let map_index = self.finished.len();
         let started = std::time::Instant::now();
         let camera = self.camera.clone();
-        let init = Mapper::initialize(map_index, &window, &pair_matches, &camera, &self.opts, &mut self.timings)?;
+        let start = (&camera, self.camera_support);
+        let init = Mapper::initialize(map_index, &window, &pair_matches, start, &self.opts, &mut self.timings)?;
         self.timings.add(Stage::Initialization, started.elapsed());
         match init {
             Some((mut map, i, j)) => {
@@ -1150,6 +1176,11 @@ impl Slam {
         if let Ok(c) = map.camera() {
             self.camera = c.clone();
         }
+        // A map that held the camera leaves it as it was; one that grew
+        // past the support refined it with more views.
+        if self.camera_support > 0 {
+            self.camera_support = self.camera_support.max(map.reconstruction().num_registered_images());
+        }
         self.finished.push(map);
         self.emitter.send(SlamEvent::MapReset { new_map, frame_index: frame, reason });
         // The last frames start the next initialisation window.
@@ -1164,8 +1195,8 @@ impl Slam {
             self.try_initialize(true)?;
         }
         // The first map may break in that last attempt's tracking.
-        if let Some((camera, note)) = self.remap_to.take() {
-            self.remap(camera, note)?;
+        if let Some(to) = self.remap_to.take() {
+            self.remap(to)?;
             if matches!(self.state, State::Initializing { .. }) {
                 self.try_initialize(true)?;
             }

@@ -317,6 +317,9 @@ pub struct ResolvedCamera {
     pub source: CameraSource,
     /// The rolling-shutter readout time a camera file gives (`readout_s`).
     pub readout_s: Option<f64>,
+    /// The registered images a camera file's intrinsics were refined over
+    /// (`refined_over`, as a run writes it when it refined them).
+    pub refined_over: Option<usize>,
 }
 
 impl CameraSource {
@@ -328,6 +331,11 @@ impl CameraSource {
 }
 
 impl ResolvedCamera {
+    /// The camera of a camera file, with what a run wrote beside it.
+    fn from_file(file: colslam_camera::file::CameraFile, source: CameraSource) -> Self {
+        Self { camera: file.camera, source, readout_s: file.readout_s, refined_over: file.refined_over }
+    }
+
     /// No calibration was given: the focal length is a guess.
     pub fn guessed(&self) -> bool {
         self.source == CameraSource::Guessed
@@ -346,7 +354,7 @@ pub fn resolve_camera(
         let file = colslam_camera::file::read_camera_file_report(path)?;
         tracing::info!("camera from {}", path.display());
         let source = CameraSource::File { path: path.clone() };
-        return Ok(ResolvedCamera { camera: file.camera, source, readout_s: file.readout_s });
+        return Ok(ResolvedCamera::from_file(file, source));
     }
     if let Some(name) = &opts.preset {
         tracing::info!("camera from the preset {name}");
@@ -354,6 +362,7 @@ pub fn resolve_camera(
             camera: preset_camera(name)?,
             source: CameraSource::Preset { name: name.clone() },
             readout_s: None,
+            refined_over: None,
         });
     }
     if opts.focal.is_none()
@@ -362,7 +371,7 @@ pub fn resolve_camera(
         let file = colslam_camera::file::read_camera_file_report(&path)?;
         tracing::info!("camera from {}", path.display());
         let source = CameraSource::BesideInput { path };
-        return Ok(ResolvedCamera { camera: file.camera, source, readout_s: file.readout_s });
+        return Ok(ResolvedCamera::from_file(file, source));
     }
     let Some((w, h)) = source.image_size() else {
         let reason = "cannot tell the image size; give --camera or --preset".to_string();
@@ -386,6 +395,7 @@ pub fn resolve_camera(
             camera: centred(f),
             source: CameraSource::Exif { path: path.to_path_buf(), tags: tags.into() },
             readout_s: None,
+            refined_over: None,
         });
     }
     let guessed = opts.focal.is_none();
@@ -406,7 +416,7 @@ pub fn resolve_camera(
         tracing::info!("camera: focal {f:.1} px as given, principal point at the centre");
     }
     let source = if guessed { CameraSource::Guessed } else { CameraSource::Focal };
-    Ok(ResolvedCamera { camera, source, readout_s: None })
+    Ok(ResolvedCamera { camera, source, readout_s: None, refined_over: None })
 }
 
 /// What the driver knows before the first frame.
@@ -538,15 +548,22 @@ pub fn run(config: &RunConfig, events: EventSink, mut hooks: RunHooks<'_>) -> Re
     let prefix = estimate_camera(&mut resolved, config, source.as_mut(), &hooks)?;
     let mut slam_opts = opts.slam.clone();
     apply_file_readout(&resolved, &mut slam_opts);
-    // A focal length that is only a prior is refined by bundle adjustment.
-    slam_opts.refine.refine_intrinsics = config.camera.refines(&resolved.source, slam_opts.refine.refine_intrinsics);
+    // A focal length that is only a prior is refined by bundle adjustment,
+    // and so are intrinsics a run refined (a camera file's `refined_over`):
+    // given back, the file reproduces that run.
+    slam_opts.refine.refine_intrinsics =
+        config.camera.refines(&resolved.source, slam_opts.refine.refine_intrinsics) || resolved.refined_over.is_some();
     // A focal length alone (`--focal`, EXIF) is no calibration of the lens:
     // it is kept as given, as before, so a written camera given back
     // reproduces the run; `--refine-intrinsics` refines it with the rest.
     if resolved.source.is_prior() {
         slam_opts.refine.refine_distortion = false;
     }
-    if slam_opts.refine.refine_intrinsics {
+    if let Some(n) = resolved.refined_over {
+        tracing::info!(
+            "intrinsics: refined by bundle adjustment from the camera file's, held until a map has {n} images"
+        );
+    } else if slam_opts.refine.refine_intrinsics {
         tracing::info!("intrinsics: refined by bundle adjustment");
     } else if slam_opts.refines_distortion_of(&resolved.camera) {
         tracing::info!(
@@ -559,10 +576,11 @@ pub fn run(config: &RunConfig, events: EventSink, mut hooks: RunHooks<'_>) -> Re
     // system the user chose for it, cleaned up with its staging folder.
     // Frames are kept only when a refinement will read them again.
     let kept = slam_opts.refines_observations().then(|| Arc::new(Mutex::new(KeptFrames::default())));
-    let mut slam =
-        Slam::new(slam_opts.clone(), &resolved.camera, events)?.with_spill(output.scratch_prefix()).with_frame_images(
-            Box::new(SourceImages { input: config.input.clone(), options: opts.source(), kept: kept.clone() }),
-        );
+    let images = Box::new(SourceImages { input: config.input.clone(), options: opts.source(), kept: kept.clone() });
+    let mut slam = Slam::new(slam_opts.clone(), &resolved.camera, events)?
+        .with_spill(output.scratch_prefix())
+        .with_frame_images(images)
+        .with_camera_support(resolved.refined_over.unwrap_or(0));
     if let Some(flag) = &hooks.interrupt {
         slam.set_interrupt(flag.clone());
     }
@@ -1116,6 +1134,33 @@ mod tests {
             &second,
             &["trajectory.tum", "cameras.bin", "images.bin", "points3D.bin", "camera.yaml"],
         );
+    }
+
+    #[test]
+    fn the_camera_a_run_refined_is_refined_again_from_its_file() {
+        let root = tempfile::tempdir().unwrap_or_else(|e| panic!("tempdir: {e}"));
+        let input = sequence(root.path(), 20);
+        let (first, second) = (root.path().join("first"), root.path().join("second"));
+        let mut c = config(&input, &first, 20, false);
+        c.camera.focal = None;
+        let a = run(&c, EventSink::none(), RunHooks::default()).unwrap_or_else(|e| panic!("run: {e}"));
+        assert_eq!(a.report.camera_source, Some(CameraSource::Guessed));
+        let written = first.join("camera.yaml");
+        let file = colslam_camera::file::read_camera_file_report(&written).unwrap_or_else(|e| panic!("{e}"));
+        assert_eq!(file.refined_over, Some(a.report.keyframes), "the keyframes of the map that refined it");
+        let mut c = config(&input, &second, 20, false);
+        c.camera = CameraOptions { camera: Some(written.clone()), ..CameraOptions::default() };
+        let b = run(&c, EventSink::none(), RunHooks::default()).unwrap_or_else(|e| panic!("run: {e}"));
+        // Refined again as the first run did, not held with a radial term
+        // added as a calibration without distortion terms would be.
+        assert!(b.report.options.refine.refine_intrinsics);
+        let again = colslam_camera::file::read_camera_file_report(&second.join("camera.yaml"))
+            .unwrap_or_else(|e| panic!("{e}"));
+        assert_eq!(again.camera.model, file.camera.model);
+        assert!(again.refined_over.is_some());
+        let start = b.report.intrinsics.as_ref().map(|i| i.focal_start_px);
+        assert_eq!(start, Some(file.camera.focal_x()), "from where the first run ended");
+        assert!(b.report.localized >= a.report.localized, "{} then {}", a.report.localized, b.report.localized);
     }
 
     #[test]

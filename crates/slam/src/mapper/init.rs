@@ -209,11 +209,13 @@ impl Mapper {
     /// has many correspondences to it and enough motion; triangulate, global
     /// refinement; if too few points survive, the next candidate pair is
     /// tried. Returns the map and the window indices of its two images.
+    /// `support`: registered images of the map `camera`'s focal length was
+    /// settled in (0 for a guess or a calibration; [`Mapper::constrains_focal`]).
     pub fn initialize(
         index: usize,
         window: &[FrameData],
         pair_matches: &PairMatches,
-        camera: &Camera,
+        (camera, support): (&Camera, usize),
         opts: &SlamOptions,
         timings: &mut StageTimings,
     ) -> Result<Option<Initialized>, SfmError> {
@@ -230,7 +232,7 @@ impl Mapper {
                     continue;
                 };
                 let pair = (&window[i], &window[j]);
-                let map = Self::from_pair(index, pair, &inliers, (rel, planar), camera, opts, timings)?;
+                let map = Self::from_pair(index, pair, &inliers, (rel, planar), (camera, support), opts, timings)?;
                 let points = map.rec.num_points3d();
                 let (a, b) = (window[i].index(), window[j].index());
                 if points >= opts.init.init_min_points {
@@ -253,7 +255,7 @@ impl Mapper {
         pair: (&FrameData, &FrameData),
         inliers: &[Match],
         (b_from_a, planar): (Rigid3, bool),
-        camera: &Camera,
+        (camera, support): (&Camera, usize),
         opts: &SlamOptions,
         timings: &mut StageTimings,
     ) -> Result<Mapper, SfmError> {
@@ -272,6 +274,7 @@ impl Mapper {
         ];
         map.initial_frames = (pair.0.index(), pair.1.index());
         map.planar_start = planar;
+        map.camera_support = support;
         map.global_refine(GlobalBaTolerance::Converged, opts, timings)?;
         Ok(map)
     }

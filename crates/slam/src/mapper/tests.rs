@@ -337,7 +337,7 @@ fn opts() -> SlamOptions {
 fn initialize(scene: &Scene, window: &[usize], opts: &SlamOptions) -> Option<(Mapper, usize, usize)> {
     let frames = scene.frames(window);
     let pm = scene.pair_matches(window);
-    Mapper::initialize(0, &frames, &pm, &scene.camera, opts, &mut StageTimings::default()).unwrap()
+    Mapper::initialize(0, &frames, &pm, (&scene.camera, 0), opts, &mut StageTimings::default()).unwrap()
 }
 
 /// The map initialised from frames 0 and 4 of the translating scene.
@@ -480,8 +480,9 @@ fn initialization_takes_the_farthest_well_matched_second_frame() {
     let next = expected_pair(&pm, 5, min_inliers);
     assert_ne!(next, farthest);
     let frames = scene.frames(&window);
-    let (map, i, j) =
-        Mapper::initialize(0, &frames, &pm, &scene.camera, &opts(), &mut StageTimings::default()).unwrap().unwrap();
+    let (map, i, j) = Mapper::initialize(0, &frames, &pm, (&scene.camera, 0), &opts(), &mut StageTimings::default())
+        .unwrap()
+        .unwrap();
     assert_eq!((i, j), next);
     assert_eq!(map.initial_frames(), next);
     scene.assert_exact(&map);
@@ -497,7 +498,7 @@ fn initialization_skips_pairs_seen_from_too_far_apart() {
         let mut o = opts();
         o.init.init_max_tri_angle = max_angle;
         let (map, i, j) =
-            Mapper::initialize(0, &frames, &pm, &scene.camera, &o, &mut StageTimings::default()).unwrap().unwrap();
+            Mapper::initialize(0, &frames, &pm, (&scene.camera, 0), &o, &mut StageTimings::default()).unwrap().unwrap();
         scene.assert_exact(&map);
         (i, j)
     };
@@ -549,7 +550,7 @@ fn pair_with_too_few_inliers_is_refused() {
     let run = |min_inliers: usize| {
         let mut o = opts();
         o.init.init_min_inliers = min_inliers;
-        Mapper::initialize(0, &frames, &pm, &scene.camera, &o, &mut StageTimings::default()).unwrap()
+        Mapper::initialize(0, &frames, &pm, (&scene.camera, 0), &o, &mut StageTimings::default()).unwrap()
     };
     // Enough matches to be tried, too few of them consistent.
     assert!(run(good + corrupted / 2).is_none());
@@ -1508,6 +1509,37 @@ fn two_views_fix_the_focal_length_unless_posed_by_a_homography() {
     let frontend = scene.frontend();
     registered(&mut map, &scene, 2, &frontend, &o);
     assert!(map.constrains_focal(), "a third view");
+}
+
+#[test]
+fn a_map_holds_a_camera_refined_over_more_images_than_it_has() {
+    let scene = Scene::translating(6);
+    let window = [0, 4];
+    let (frames, pm) = (scene.frames(&window), scene.pair_matches(&window));
+    let mut o = opts();
+    // What `Slam::new` settles for refined intrinsics.
+    (o.refine.refine_intrinsics, o.refine.refine_distortion) = (true, false);
+    let c = &scene.camera;
+    let long = Camera::pinhole(c.width, c.height, 1.1 * c.focal_x(), 1.1 * c.focal_y(), c.params[2], c.params[3]);
+    let init = |support: usize| {
+        let (map, ..) = Mapper::initialize(0, &frames, &pm, (&long, support), &o, &mut StageTimings::default())
+            .unwrap()
+            .expect("initialises");
+        map
+    };
+    // A guess (no support): the two-view BA takes it to the truth.
+    let guessed = init(0);
+    assert!((guessed.focal().unwrap() / c.mean_focal() - 1.0).abs() < 0.01, "{}", guessed.focal().unwrap());
+    // Refined over three images before: two hold it, unsettled.
+    let mut map = init(3);
+    assert_eq!(map.focal().unwrap(), long.mean_focal());
+    assert!(!map.constrains_focal() && map.settled_camera().is_none());
+    // A third view: the map knows as much as the one it came from.
+    let frontend = scene.frontend();
+    registered(&mut map, &scene, 2, &frontend, &o);
+    assert!(map.constrains_focal());
+    map.global_refine(GlobalBaTolerance::Converged, &o, &mut StageTimings::default()).unwrap();
+    assert!((map.focal().unwrap() / c.mean_focal() - 1.0).abs() < 0.01, "{}", map.focal().unwrap());
 }
 
 #[test]

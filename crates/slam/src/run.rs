@@ -1109,11 +1109,19 @@ mod tests {
         }
     }
 
-    #[test]
-    fn the_written_camera_file_reproduces_the_run() {
+    /// A temporary folder (kept alive by the first value) with a 20-frame
+    /// sequence and the output folders of a first run and of a second run
+    /// given what the first wrote.
+    fn two_runs() -> (tempfile::TempDir, PathBuf, PathBuf, PathBuf) {
         let root = tempfile::tempdir().unwrap_or_else(|e| panic!("tempdir: {e}"));
         let input = sequence(root.path(), 20);
         let (first, second) = (root.path().join("first"), root.path().join("second"));
+        (root, input, first, second)
+    }
+
+    #[test]
+    fn the_written_camera_file_reproduces_the_run() {
+        let (_root, input, first, second) = two_runs();
         let a = run(&config(&input, &first, 20, false), EventSink::none(), RunHooks::default())
             .unwrap_or_else(|e| panic!("run: {e}"));
         assert_eq!(a.report.camera_source, Some(CameraSource::Focal));
@@ -1138,9 +1146,7 @@ mod tests {
 
     #[test]
     fn the_camera_a_run_refined_is_refined_again_from_its_file() {
-        let root = tempfile::tempdir().unwrap_or_else(|e| panic!("tempdir: {e}"));
-        let input = sequence(root.path(), 20);
-        let (first, second) = (root.path().join("first"), root.path().join("second"));
+        let (_root, input, first, second) = two_runs();
         let mut c = config(&input, &first, 20, false);
         c.camera.focal = None;
         let a = run(&c, EventSink::none(), RunHooks::default()).unwrap_or_else(|e| panic!("run: {e}"));
@@ -1165,9 +1171,7 @@ mod tests {
 
     #[test]
     fn the_written_camera_file_carries_the_readout() {
-        let root = tempfile::tempdir().unwrap_or_else(|e| panic!("tempdir: {e}"));
-        let input = sequence(root.path(), 20);
-        let (first, second) = (root.path().join("first"), root.path().join("second"));
+        let (_root, input, first, second) = two_runs();
         let mut c = config(&input, &first, 20, false);
         c.options.slam.refine.rolling_shutter = crate::options::RollingShutter::Seconds(0.02);
         let a = run(&c, EventSink::none(), RunHooks::default()).unwrap_or_else(|e| panic!("run: {e}"));

@@ -223,16 +223,6 @@ const PARALLAX_SAFE_MATCHES: usize = 2;
 /// to it as well, then dropped). Bounds memory on long static stretches.
 const MAX_PENDING_FRAMES: usize = 60;
 
-/// The camera to map the frames so far again with ([`Slam::remap_camera`]).
-struct RemapTo {
-    /// The settled camera.
-    camera: colslam_camera::Camera,
-    /// Registered images of the map it settled in.
-    support: usize,
-    /// The note that says so.
-    note: String,
-}
-
 /// Frames kept for relocalisation at the end (those no map tracked when they
 /// came); bounds memory on long failures (about 0.2 MB per frame).
 const MAX_ORPHANS: usize = 500;
@@ -404,6 +394,16 @@ enum Remap {
     Failing { frame: usize },
     /// A periodic global BA refined its focal length.
     Stable { frame: usize },
+}
+
+/// The camera to map the frames so far again with ([`Slam::remap_camera`]).
+struct RemapTo {
+    /// The settled camera.
+    camera: colslam_camera::Camera,
+    /// Registered images of the map it settled in.
+    support: usize,
+    /// The note that says so.
+    note: String,
 }
 
 /// The pipeline. Feed frames in order with [`Slam::process`] (or

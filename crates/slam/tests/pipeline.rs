@@ -422,12 +422,12 @@ fn kitti_without_calibration_is_mapped_again_once_a_map_constrains_its_focal_len
     // A car driving straight, focal length started at COLMAP's prior, 1489
     // px (twice the calibration's). Held in two-view homography maps and
     // refined from the third view on, it ends within 3 % of the
-    // calibration's, but the map
-    // made under the guess keeps its error (ATE 14-20 m against 0.24
-    // calibrated). So the frames so far are mapped again as soon as a
-    // map's focal length stays put while the map grows and its views
-    // constrain it: on every seed measured, the first map at 13 keyframes,
-    // 701-703 px (sharpness 0.14-0.16), at frame 51, before it fails.
+    // calibration's, but the map made under the guess keeps its error (ATE
+    // 14-20 m against 0.24 calibrated). So the frames so far are mapped
+    // again as soon as a map's focal length stays put while the map grows
+    // and its views constrain it: on every seed measured, the first map at
+    // 13 keyframes, 701-703 px (sharpness 0.14-0.16), at frame 51, before
+    // it fails.
     let Some((dir, calibrated, frames)) = dataset_frames("kitti_odom00_first300") else { return };
     let gt = Trajectory::read_tum(&dir.join("groundtruth.txt")).expect("ground truth");
     let (w, h) = (calibrated.width as u32, calibrated.height as u32);

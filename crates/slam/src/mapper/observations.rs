@@ -29,7 +29,7 @@ use super::localize::{FrameInliers, Localization};
 use super::state::Mapper;
 use crate::error::SlamError;
 use crate::frame::undistort;
-use crate::options::SlamOptions;
+use crate::options::{OVERLAP_MAX_VIEW_ANGLE_DEG, SlamOptions};
 use crate::patch::{GradientImage, PATCH_HALF, SmoothImage, Template};
 use crate::timing::{Stage, StageTimings};
 use colslam_camera::Camera;
@@ -309,9 +309,13 @@ impl Mapper {
     }
 
     /// Aligns the localised non-keyframes' PnP inliers to their tracks'
-    /// templates and refines each such frame's pose on the aligned
-    /// observations (with `--refine-all-frames`, these observations enter the
-    /// final bundle adjustment). The frames are read again one at a time.
+    /// templates; with `--search-local-map`, where at least
+    /// [`MIN_ALIGNED_SHARE`] of them aligned, also the templates of the
+    /// frame's local map ([`LocalTemplates`]) where their points project,
+    /// which join the frame's inliers. Each such frame's pose is refined on
+    /// the aligned observations (with `--refine-all-frames`, these
+    /// observations enter the final bundle adjustment). The frames are read
+    /// again one at a time.
     pub fn refine_frame_observations(
         &self,
         loc: &mut Localization,
@@ -341,6 +345,8 @@ impl Mapper {
             let mut shifts = Vec::new();
             let mut tried = 0usize;
             let mut refined: Vec<(usize, Rigid3, FrameInliers)> = Vec::new();
+            let local = LocalTemplates::new(self, tracks);
+            let (mut searched, mut added) = (0usize, 0usize);
             images.read(&frames, &mut |index, image| {
                 let image = match image {
                     Err(why) => return unread.note(index, &why),
@@ -348,19 +354,39 @@ impl Mapper {
                 };
                 let (Some(&s), Some(inliers)) = (slot.get(&index), loc.inliers.get(&index)) else { return };
                 let pose = loc.poses[s].cam_from_world;
-                let list: Vec<(usize, Point3DId, Vec2)> = inliers
+                let mut list: Vec<(usize, Point3DId, Vec2)> = inliers
                     .iter()
                     .enumerate()
                     .filter(|(_, (_, pid))| tracks.templates.contains_key(pid))
                     .map(|(k, (n, pid))| (k, *pid, camera.img_from_normalized(n)))
                     .collect();
-                let found = self.align_in_image(camera, tracks, &SmoothImage::new(&image.to_gray()), &pose, &list);
+                let smooth = SmoothImage::new(&image.to_gray());
+                let mut found = self.align_in_image(camera, tracks, &smooth, &pose, &list);
+                let aligned_share = found.iter().flatten().count() as f64 / found.len().max(1) as f64;
+                let projected = if opts.refine.search_local_map && aligned_share >= MIN_ALIGNED_SHARE {
+                    local.visible(camera, &pose, inliers)
+                } else {
+                    Vec::new()
+                };
+                searched += projected.len();
+                list.clear();
+                list.extend(projected.iter().enumerate().map(|(j, (pid, xy))| (inliers.len() + j, *pid, *xy)));
+                found.extend(self.align_in_image(camera, tracks, &smooth, &pose, &list));
                 tried += found.len();
                 let mut aligned = inliers.clone();
                 let before = shifts.len();
                 for (k, xy, d) in found.into_iter().flatten() {
                     if let Some(n) = undistort(camera, &xy) {
-                        aligned[k].0 = n;
+                        match aligned.get_mut(k) {
+                            Some(a) => a.0 = n,
+                            None => match projected.get(k - inliers.len()) {
+                                Some((pid, _)) => {
+                                    aligned.push((n, *pid));
+                                    added += 1;
+                                }
+                                None => continue,
+                            },
+                        }
                         shifts.push(d);
                     }
                 }
@@ -374,6 +400,12 @@ impl Mapper {
                 }
                 let p2: Vec<Vec2> = aligned.iter().map(|(n, _)| *n).collect();
                 if let Ok((pose, _)) = refine_absolute_pose(&pose, &p2, &p3, &refine) {
+                    // The tracks found by projection stay only where the
+                    // all-frame BA will see them: kept for every frame of a
+                    // long video, they would triple its inliers' memory.
+                    if !opts.refine.refine_all_frames {
+                        aligned.truncate(inliers.len());
+                    }
                     refined.push((index, pose, aligned));
                 }
             })?;
@@ -383,10 +415,115 @@ impl Mapper {
                 }
                 loc.inliers.insert(index, aligned);
             }
+            if opts.refine.search_local_map {
+                tracing::debug!(
+                    "map {}: local maps searched in {} non-keyframes: {added} of {searched} projected tracks found",
+                    self.index,
+                    frames.len()
+                );
+            }
             Ok(summary(self.index, "non-keyframe", tracks.templates.len(), tried, shifts, unread))
         })
     }
 }
+
+/// The tracks with a template that a non-keyframe may see: those of the
+/// keyframes that share its PnP inliers (ORB-SLAM's local map), each
+/// with its point and its reference camera's centre.
+struct LocalTemplates<'m> {
+    rec: &'m colslam_scene::Reconstruction,
+    /// Each track's point and reference camera centre.
+    points: HashMap<Point3DId, (Vec3, Vec3)>,
+    /// Each keyframe's tracks with a template, ascending.
+    of_keyframe: HashMap<ImageId, Vec<Point3DId>>,
+}
+
+impl<'m> LocalTemplates<'m> {
+    fn new(map: &'m Mapper, tracks: &TrackTemplates) -> Self {
+        let rec = &map.rec;
+        let points: HashMap<Point3DId, (Vec3, Vec3)> = tracks
+            .reference_of
+            .iter()
+            .filter(|(pid, _)| tracks.templates.contains_key(pid))
+            .filter_map(|(pid, r)| Some((*pid, (rec.point3d(*pid)?.xyz, rec.image(*r)?.cam_from_world.center()))))
+            .collect();
+        let mut of_keyframe: HashMap<ImageId, Vec<Point3DId>> = HashMap::new();
+        for kf in &map.keyframes {
+            let Some(img) = rec.image(kf.image_id) else { continue };
+            let mut ids: Vec<Point3DId> =
+                img.points2d.iter().filter_map(|p| p.point3d_id).filter(|id| points.contains_key(id)).collect();
+            ids.sort_unstable();
+            ids.dedup();
+            of_keyframe.insert(kf.image_id, ids);
+        }
+        Self { rec, points, of_keyframe }
+    }
+
+    /// The tracks not among `inliers` of the [`LOCAL_KEYFRAMES`] keyframes
+    /// that observe the most of `inliers` (ties: lower id) whose point
+    /// projects inside an image taken from `pose`, far enough from the
+    /// border for a patch to be aligned, in front of it at a distance within
+    /// [`MAX_SCALE_CHANGE`] of the reference camera's and within
+    /// [`OVERLAP_MAX_VIEW_ANGLE_DEG`] of the reference view: each with its
+    /// projection, by point id.
+    fn visible(&self, camera: &Camera, pose: &Rigid3, inliers: &FrameInliers) -> Vec<(Point3DId, Vec2)> {
+        let mut votes: BTreeMap<ImageId, usize> = BTreeMap::new();
+        for (_, pid) in inliers {
+            for e in self.rec.point3d(*pid).map(|p| p.track.as_slice()).unwrap_or_default() {
+                if self.of_keyframe.contains_key(&e.image_id) {
+                    *votes.entry(e.image_id).or_default() += 1;
+                }
+            }
+        }
+        let mut keyframes: Vec<(usize, ImageId)> = votes.into_iter().map(|(id, n)| (n, id)).collect();
+        keyframes.sort_by(|a, b| b.0.cmp(&a.0).then(a.1.cmp(&b.1)));
+        keyframes.truncate(LOCAL_KEYFRAMES);
+        let have: std::collections::HashSet<Point3DId> = inliers.iter().map(|(_, pid)| *pid).collect();
+        let mut ids: Vec<Point3DId> = keyframes
+            .iter()
+            .filter_map(|(_, id)| self.of_keyframe.get(id))
+            .flatten()
+            .copied()
+            .filter(|id| !have.contains(id))
+            .collect();
+        ids.sort_unstable();
+        ids.dedup();
+        let centre = pose.center();
+        let cos_max = OVERLAP_MAX_VIEW_ANGLE_DEG.to_radians().cos();
+        let margin = f64::from(PATCH_HALF) + MAX_SHIFT_PX + 1.0;
+        let (w, h) = (camera.width as f64, camera.height as f64);
+        ids.into_iter()
+            .filter_map(|pid| {
+                let (x, ref_centre) = self.points.get(&pid)?;
+                let (r1, r2) = (x - ref_centre, x - centre);
+                let (d1, d2) = (r1.norm(), r2.norm());
+                if r1.dot(&r2) < cos_max * d1 * d2 || d2 > d1 * MAX_SCALE_CHANGE || d1 > d2 * MAX_SCALE_CHANGE {
+                    return None;
+                }
+                let xy = camera.img_from_cam(&pose.transform_point(x))?;
+                (xy.x >= margin && xy.y >= margin && xy.x <= w - margin && xy.y <= h - margin).then_some((pid, xy))
+            })
+            .collect()
+    }
+}
+
+/// Share of a non-keyframe's own PnP inliers that must align for its local
+/// map to be searched: where most of them fail (motion blur, an
+/// uncompensated rolling shutter: TUM fr1's frames align a third of
+/// theirs, the synthetic room's four in five), the templates found by
+/// projection would mostly fail too, at the cost of their search.
+const MIN_ALIGNED_SHARE: f64 = 0.5;
+
+/// Keyframes whose tracks a non-keyframe is searched for: those sharing
+/// the most of its inliers (ORB-SLAM's local map is its covisible
+/// keyframes and theirs; 10 of them hold the points a frame between two
+/// keyframes sees).
+const LOCAL_KEYFRAMES: usize = 10;
+
+/// Largest ratio of a point's distances from a non-keyframe and from its
+/// track's reference camera for its template to be searched there: beyond
+/// it the 9x9 template covers a patch of another size than the image.
+const MAX_SCALE_CHANGE: f64 = 1.5;
 
 /// Where the reference patch around `ref_xy` lands in a target view, as an
 /// affine map at the point: the patch is taken to lie on the plane through

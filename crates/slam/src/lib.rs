@@ -50,7 +50,7 @@ pub use export::{
 pub use frame::{FrameData, FrameId, FramePose, FrameRecord};
 pub use mapper::observations::{FrameImages, ObservationRefinement, TrackTemplates};
 pub use mapper::rolling_shutter;
-pub use options::{FeatureKind, MatcherKind, RollingShutter, SlamOptions};
+pub use options::{FeatureKind, LocalMapSearch, MatcherKind, RollingShutter, SlamOptions};
 pub use output::{
     IntrinsicsSummary, OutputFormat, RUN_OUTPUT_NAMES, RunReport, begin_run_output, write_outputs, write_report,
 };

@@ -43,6 +43,43 @@ pub enum MatcherKind {
     Lighterglue,
 }
 
+/// Where the observation refinement searches a frame's local map for the
+/// tracks it did not match (`--search-local-map`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[cfg_attr(feature = "cli", derive(clap::ValueEnum))]
+#[serde(rename_all = "lowercase")]
+pub enum LocalMapSearch {
+    /// Nowhere: a frame keeps the observations it matched.
+    Off,
+    /// In the frames between keyframes, whose poses are refined on what is found.
+    #[default]
+    Frames,
+    /// In the keyframes too, before the final bundle adjustment: longer tracks in the map.
+    All,
+}
+
+impl LocalMapSearch {
+    /// True when the frames between keyframes are searched.
+    pub fn frames(self) -> bool {
+        self != Self::Off
+    }
+
+    /// True when the keyframes are searched.
+    pub fn keyframes(self) -> bool {
+        self == Self::All
+    }
+}
+
+impl std::fmt::Display for LocalMapSearch {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            Self::Off => "off",
+            Self::Frames => "frames",
+            Self::All => "all",
+        })
+    }
+}
+
 impl std::fmt::Display for FeatureKind {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         f.write_str(match self {
@@ -559,11 +596,11 @@ pub struct RefineOptions {
     /// On by default: the alignment also corrects the patch's shape, which the map predicts as facing the reference camera, so a slanted surface (a road ahead) no longer biases it. Medians over seeds 0-2: the synthetic room's ATE falls to under half, Strecha entry's by 27 %, castle's by 8 %, KITTI odometry's by 4 %, TUM is level, herzjesu 2 % and fountain 8 % worse, at about 1 s more on a 200-frame video (docs/benchmarks.md, "Affine patch alignment"). Frames are read again (`false` skips it); a library caller without a frame source gets no refinement.
     #[cfg_attr(feature = "cli", arg(long, value_name = "BOOL", default_value_t = RefineOptions::default().refine_observations, action = clap::ArgAction::Set))]
     pub refine_observations: bool,
-    /// With `--refine-observations`, search each non-keyframe for the other tracks of its local map.
+    /// Where frames are searched for their local map's unmatched tracks.
     ///
-    /// A frame between keyframes is localised from its matches to them, a third to a half of the map points it sees; the refinement then projects the other points of the keyframes that share its matches and aligns their templates where they land, so the frame's pose rests on every point it sees and a point seen over 40 frames has 40 observations (the long tracks of COLMAP's model of a video, found as direct methods track). A frame whose own matches mostly fail to align (blur, rolling shutter) is not searched. Medians over seeds 0-2: the synthetic room's ATE falls by 45 %, TUM, KITTI and Strecha are level (docs/benchmarks.md, "The local map searched in every frame").
-    #[cfg_attr(feature = "cli", arg(long, value_name = "BOOL", default_value_t = RefineOptions::default().search_local_map, action = clap::ArgAction::Set))]
-    pub search_local_map: bool,
+    /// A frame between keyframes is localised from its matches to them, a third to a half of the map points it sees; the refinement projects the other points of the keyframes that share its matches and aligns their templates where they land, so its pose rests on every point it sees (found as direct methods track). `frames` (default): the frames between keyframes; the synthetic room's ATE falls by 45 %, the Strecha sets gain 1-2 %, TUM and KITTI are level. `all`: the keyframes too, before the final bundle adjustment, whose tracks get longer; the Strecha sets and the synthetic rooms then end at or near COLMAP's error, but a drive's scale moves (KITTI odometry 30 % worse). A frame whose own matches mostly fail to align (blur, rolling shutter) is not searched (docs/benchmarks.md, "The local map searched in every frame").
+    #[cfg_attr(feature = "cli", arg(long, value_name = "WHERE", default_value_t = RefineOptions::default().search_local_map))]
+    pub search_local_map: LocalMapSearch,
     /// Cauchy loss in the final BAs, at the map's median reprojection error.
     ///
     /// The filter keeps observations up to 4 px off, and under a squared loss the few mismatches among them move the poses along the map's weak directions; a Cauchy loss at the map's own error level lets them count less (docs/benchmarks.md, "Observation refinement"). Without it, the final bundle adjustments use the squared loss, as COLMAP's global BA. Off by default: the mismatches it held down were mostly two-view tracks', which the final BAs now leave out (`--final-ba-min-track`); alone it no longer helps, and after `--refine-observations` it helps the synthetic keyframes only (docs/benchmarks.md, "Two-view tracks out of the final BA").
@@ -609,7 +646,7 @@ impl Default for RefineOptions {
             localize_all_frames: true,
             refine_all_frames: false,
             refine_observations: true,
-            search_local_map: true,
+            search_local_map: LocalMapSearch::Frames,
             robust_final_ba: false,
             final_ba_min_track: 3,
             match_overlapping: 0,

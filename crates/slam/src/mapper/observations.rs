@@ -37,7 +37,7 @@ use colslam_estimators::refine_absolute_pose;
 use colslam_geometry::nalgebra::Matrix2;
 use colslam_geometry::{Rigid3, Vec2, Vec3};
 use colslam_image::Image;
-use colslam_scene::{ImageId, Point3DId};
+use colslam_scene::{ImageId, Point3DId, TrackElement};
 use rayon::prelude::*;
 use std::collections::{BTreeMap, BTreeSet, HashMap};
 
@@ -167,7 +167,8 @@ impl Mapper {
         opts: &SlamOptions,
         timings: &mut StageTimings,
     ) -> Result<(ObservationRefinement, TrackTemplates), SlamError> {
-        let (report, templates) = timings.time(Stage::ObservationRefinement, || self.align_observations(images))?;
+        let (report, templates) =
+            timings.time(Stage::ObservationRefinement, || self.align_observations(images, opts))?;
         if report.moved == 0 {
             return Ok((report, templates));
         }
@@ -203,6 +204,7 @@ impl Mapper {
     fn align_observations(
         &mut self,
         images: &mut dyn FrameImages,
+        opts: &SlamOptions,
     ) -> Result<(ObservationRefinement, TrackTemplates), SlamError> {
         let camera = self.camera()?.clone();
         // Registered keyframes: image id -> (slot, frame index).
@@ -267,18 +269,32 @@ impl Mapper {
                 }
             }
         })?;
-        // Pass 2: the alignments.
+        // Pass 2: the alignments; with `--search-local-map`, also the tracks
+        // of each keyframe's local map that it does not observe.
         let mut moves: Vec<(ImageId, u32, Vec2, f64)> = Vec::new();
+        let mut found_new: Vec<(ImageId, Point3DId, Vec2, f64)> = Vec::new();
         let mut tried = 0usize;
+        let local = LocalTemplates::new(self, &tracks);
         let mut align_in = |index: usize, image: &Image| {
             let Some((image_id, list)) = targets.get(&index) else { return };
-            let Some(pose) = self.rec.image(*image_id).map(|i| i.cam_from_world) else { return };
+            let Some(img) = self.rec.image(*image_id) else { return };
+            let pose = img.cam_from_world;
             let list: Vec<(u32, Point3DId, Vec2)> = list
                 .iter()
                 .filter(|t| tracks.templates.contains_key(&t.point))
                 .map(|t| (t.point2d, t.point, t.xy))
                 .collect();
-            let found = self.align_in_image(&camera, &tracks, &SmoothImage::new(image), &pose, &list);
+            let smooth = SmoothImage::new(image);
+            let found = self.align_in_image(&camera, &tracks, &smooth, &pose, &list);
+            let aligned_share = found.iter().flatten().count() as f64 / found.len().max(1) as f64;
+            if opts.refine.search_local_map.keyframes() && aligned_share >= MIN_ALIGNED_SHARE {
+                let observed: Vec<Point3DId> = img.points2d.iter().filter_map(|p| p.point3d_id).collect();
+                let list: Vec<(Point3DId, Point3DId, Vec2)> =
+                    local.visible(&camera, &pose, &observed).into_iter().map(|(pid, xy)| (pid, pid, xy)).collect();
+                let new = self.align_in_image(&camera, &tracks, &smooth, &pose, &list);
+                tried += new.len();
+                found_new.extend(new.into_iter().flatten().map(|(pid, xy, d)| (*image_id, pid, xy, d)));
+            }
             tried += found.len();
             moves.extend(found.into_iter().flatten().map(|(k, xy, d)| (*image_id, k, xy, d)));
         };
@@ -303,6 +319,21 @@ impl Mapper {
                 self.rec.set_point2d_xy(image_id, k, xy)?;
                 shifts.push(d);
             }
+        }
+        let mut added = 0usize;
+        for (image_id, pid, xy, d) in found_new {
+            // The search skipped the keyframe's own tracks; a track is
+            // observed once per image.
+            if self.rec.point3d(pid).is_none_or(|p| p.track.iter().any(|e| e.image_id == image_id)) {
+                continue;
+            }
+            let idx = self.rec.push_point2d(image_id, xy)?;
+            self.rec.add_observation(pid, TrackElement::new(image_id, idx))?;
+            shifts.push(d);
+            added += 1;
+        }
+        if opts.refine.search_local_map.keyframes() {
+            tracing::debug!("map {}: local maps searched in the keyframes: {added} observations added", self.index);
         }
         let report = summary(self.index, "keyframe", tracks.templates.len(), tried, shifts, unread);
         Ok((report, tracks))
@@ -363,8 +394,8 @@ impl Mapper {
                 let smooth = SmoothImage::new(&image.to_gray());
                 let mut found = self.align_in_image(camera, tracks, &smooth, &pose, &list);
                 let aligned_share = found.iter().flatten().count() as f64 / found.len().max(1) as f64;
-                let projected = if opts.refine.search_local_map && aligned_share >= MIN_ALIGNED_SHARE {
-                    local.visible(camera, &pose, inliers)
+                let projected = if opts.refine.search_local_map.frames() && aligned_share >= MIN_ALIGNED_SHARE {
+                    local.visible(camera, &pose, &inliers.iter().map(|(_, pid)| *pid).collect::<Vec<_>>())
                 } else {
                     Vec::new()
                 };
@@ -415,7 +446,7 @@ impl Mapper {
                 }
                 loc.inliers.insert(index, aligned);
             }
-            if opts.refine.search_local_map {
+            if opts.refine.search_local_map.frames() {
                 tracing::debug!(
                     "map {}: local maps searched in {} non-keyframes: {added} of {searched} projected tracks found",
                     self.index,
@@ -427,9 +458,9 @@ impl Mapper {
     }
 }
 
-/// The tracks with a template that a non-keyframe may see: those of the
-/// keyframes that share its PnP inliers (ORB-SLAM's local map), each
-/// with its point and its reference camera's centre.
+/// The tracks with a template that a frame may see: those of the keyframes
+/// that share its observations (ORB-SLAM's local map), each with its point
+/// and its reference camera's centre.
 struct LocalTemplates<'m> {
     rec: &'m colslam_scene::Reconstruction,
     /// Each track's point and reference camera centre.
@@ -459,16 +490,16 @@ impl<'m> LocalTemplates<'m> {
         Self { rec, points, of_keyframe }
     }
 
-    /// The tracks not among `inliers` of the [`LOCAL_KEYFRAMES`] keyframes
-    /// that observe the most of `inliers` (ties: lower id) whose point
+    /// The tracks not among `observed` of the [`LOCAL_KEYFRAMES`] keyframes
+    /// that observe the most of `observed` (ties: lower id) whose point
     /// projects inside an image taken from `pose`, far enough from the
     /// border for a patch to be aligned, in front of it at a distance within
     /// [`MAX_SCALE_CHANGE`] of the reference camera's and within
     /// [`OVERLAP_MAX_VIEW_ANGLE_DEG`] of the reference view: each with its
     /// projection, by point id.
-    fn visible(&self, camera: &Camera, pose: &Rigid3, inliers: &FrameInliers) -> Vec<(Point3DId, Vec2)> {
+    fn visible(&self, camera: &Camera, pose: &Rigid3, observed: &[Point3DId]) -> Vec<(Point3DId, Vec2)> {
         let mut votes: BTreeMap<ImageId, usize> = BTreeMap::new();
-        for (_, pid) in inliers {
+        for pid in observed {
             for e in self.rec.point3d(*pid).map(|p| p.track.as_slice()).unwrap_or_default() {
                 if self.of_keyframe.contains_key(&e.image_id) {
                     *votes.entry(e.image_id).or_default() += 1;
@@ -478,7 +509,7 @@ impl<'m> LocalTemplates<'m> {
         let mut keyframes: Vec<(usize, ImageId)> = votes.into_iter().map(|(id, n)| (n, id)).collect();
         keyframes.sort_by(|a, b| b.0.cmp(&a.0).then(a.1.cmp(&b.1)));
         keyframes.truncate(LOCAL_KEYFRAMES);
-        let have: std::collections::HashSet<Point3DId> = inliers.iter().map(|(_, pid)| *pid).collect();
+        let have: std::collections::HashSet<Point3DId> = observed.iter().copied().collect();
         let mut ids: Vec<Point3DId> = keyframes
             .iter()
             .filter_map(|(_, id)| self.of_keyframe.get(id))
@@ -507,21 +538,20 @@ impl<'m> LocalTemplates<'m> {
     }
 }
 
-/// Share of a non-keyframe's own PnP inliers that must align for its local
-/// map to be searched: where most of them fail (motion blur, an
-/// uncompensated rolling shutter: TUM fr1's frames align a third of
-/// theirs, the synthetic room's four in five), the templates found by
-/// projection would mostly fail too, at the cost of their search.
+/// Share of a frame's own observations (a non-keyframe's PnP inliers) that
+/// must align for its local map to be searched: where most of them fail
+/// (motion blur, an uncompensated rolling shutter: TUM fr1's frames align a
+/// third of theirs, the synthetic room's four in five), the templates found
+/// by projection would mostly fail too, at the cost of their search.
 const MIN_ALIGNED_SHARE: f64 = 0.5;
 
-/// Keyframes whose tracks a non-keyframe is searched for: those sharing
-/// the most of its inliers (ORB-SLAM's local map is its covisible
-/// keyframes and theirs; 10 of them hold the points a frame between two
-/// keyframes sees).
+/// Keyframes whose tracks a frame is searched for: those sharing the most
+/// of its observations (ORB-SLAM's local map is its covisible keyframes and
+/// theirs; 10 of them hold the points a frame between two keyframes sees).
 const LOCAL_KEYFRAMES: usize = 10;
 
-/// Largest ratio of a point's distances from a non-keyframe and from its
-/// track's reference camera for its template to be searched there: beyond
+/// Largest ratio of a point's distances from a frame and from its track's
+/// reference camera for its template to be searched there: beyond
 /// it the 9x9 template covers a patch of another size than the image.
 const MAX_SCALE_CHANGE: f64 = 1.5;
 

@@ -286,12 +286,9 @@ impl Mapper {
                 .collect();
             let smooth = SmoothImage::new(image);
             let found = self.align_in_image(&camera, &tracks, &smooth, &pose, &list);
-            let aligned_share = found.iter().flatten().count() as f64 / found.len().max(1) as f64;
-            if opts.refine.search_local_map.keyframes() && aligned_share >= MIN_ALIGNED_SHARE {
+            if opts.refine.search_local_map.keyframes() {
                 let observed: Vec<Point3DId> = img.points2d.iter().filter_map(|p| p.point3d_id).collect();
-                let list: Vec<(Point3DId, Point3DId, Vec2)> =
-                    local.visible(&camera, &pose, &observed).into_iter().map(|(pid, xy)| (pid, pid, xy)).collect();
-                let new = self.align_in_image(&camera, &tracks, &smooth, &pose, &list);
+                let new = local.search(&camera, &smooth, &pose, &observed, &found);
                 tried += new.len();
                 found_new.extend(new.into_iter().flatten().map(|(pid, xy, d)| (*image_id, pid, xy, d)));
             }
@@ -385,39 +382,34 @@ impl Mapper {
                 };
                 let (Some(&s), Some(inliers)) = (slot.get(&index), loc.inliers.get(&index)) else { return };
                 let pose = loc.poses[s].cam_from_world;
-                let mut list: Vec<(usize, Point3DId, Vec2)> = inliers
+                let list: Vec<(usize, Point3DId, Vec2)> = inliers
                     .iter()
                     .enumerate()
                     .filter(|(_, (_, pid))| tracks.templates.contains_key(pid))
                     .map(|(k, (n, pid))| (k, *pid, camera.img_from_normalized(n)))
                     .collect();
                 let smooth = SmoothImage::new(&image.to_gray());
-                let mut found = self.align_in_image(camera, tracks, &smooth, &pose, &list);
-                let aligned_share = found.iter().flatten().count() as f64 / found.len().max(1) as f64;
-                let projected = if opts.refine.search_local_map.frames() && aligned_share >= MIN_ALIGNED_SHARE {
-                    local.visible(camera, &pose, &inliers.iter().map(|(_, pid)| *pid).collect::<Vec<_>>())
+                let found = self.align_in_image(camera, tracks, &smooth, &pose, &list);
+                let new = if opts.refine.search_local_map.frames() {
+                    let observed: Vec<Point3DId> = inliers.iter().map(|(_, pid)| *pid).collect();
+                    local.search(camera, &smooth, &pose, &observed, &found)
                 } else {
                     Vec::new()
                 };
-                searched += projected.len();
-                list.clear();
-                list.extend(projected.iter().enumerate().map(|(j, (pid, xy))| (inliers.len() + j, *pid, *xy)));
-                found.extend(self.align_in_image(camera, tracks, &smooth, &pose, &list));
-                tried += found.len();
+                searched += new.len();
+                tried += found.len() + new.len();
                 let mut aligned = inliers.clone();
                 let before = shifts.len();
                 for (k, xy, d) in found.into_iter().flatten() {
                     if let Some(n) = undistort(camera, &xy) {
-                        match aligned.get_mut(k) {
-                            Some(a) => a.0 = n,
-                            None => match projected.get(k - inliers.len()) {
-                                Some((pid, _)) => {
-                                    aligned.push((n, *pid));
-                                    added += 1;
-                                }
-                                None => continue,
-                            },
-                        }
+                        aligned[k].0 = n;
+                        shifts.push(d);
+                    }
+                }
+                for (pid, xy, d) in new.into_iter().flatten() {
+                    if let Some(n) = undistort(camera, &xy) {
+                        aligned.push((n, pid));
+                        added += 1;
                         shifts.push(d);
                     }
                 }
@@ -462,7 +454,9 @@ impl Mapper {
 /// that share its observations (ORB-SLAM's local map), each with its point
 /// and its reference camera's centre.
 struct LocalTemplates<'m> {
-    rec: &'m colslam_scene::Reconstruction,
+    /// The map searched, and its tracks' templates.
+    map: &'m Mapper,
+    tracks: &'m TrackTemplates,
     /// Each track's point and reference camera centre.
     points: HashMap<Point3DId, (Vec3, Vec3)>,
     /// Each keyframe's tracks with a template, ascending.
@@ -470,7 +464,7 @@ struct LocalTemplates<'m> {
 }
 
 impl<'m> LocalTemplates<'m> {
-    fn new(map: &'m Mapper, tracks: &TrackTemplates) -> Self {
+    fn new(map: &'m Mapper, tracks: &'m TrackTemplates) -> Self {
         let rec = &map.rec;
         let points: HashMap<Point3DId, (Vec3, Vec3)> = tracks
             .reference_of
@@ -487,7 +481,29 @@ impl<'m> LocalTemplates<'m> {
             ids.dedup();
             of_keyframe.insert(kf.image_id, ids);
         }
-        Self { rec, points, of_keyframe }
+        Self { map, tracks, points, of_keyframe }
+    }
+
+    /// `--search-local-map` in one image taken from `pose` whose own
+    /// observations of `observed` aligned as `own`: where at least
+    /// [`MIN_ALIGNED_SHARE`] of them did, the tracks [`Self::visible`] gives
+    /// aligned from their projection, each found with its pixel and move;
+    /// none elsewhere.
+    fn search<T>(
+        &self,
+        camera: &Camera,
+        image: &SmoothImage,
+        pose: &Rigid3,
+        observed: &[Point3DId],
+        own: &[Option<T>],
+    ) -> Vec<Option<(Point3DId, Vec2, f64)>> {
+        let aligned_share = own.iter().flatten().count() as f64 / own.len().max(1) as f64;
+        if aligned_share < MIN_ALIGNED_SHARE {
+            return Vec::new();
+        }
+        let list: Vec<(Point3DId, Point3DId, Vec2)> =
+            self.visible(camera, pose, observed).into_iter().map(|(pid, xy)| (pid, pid, xy)).collect();
+        self.map.align_in_image(camera, self.tracks, image, pose, &list)
     }
 
     /// The tracks not among `observed` of the [`LOCAL_KEYFRAMES`] keyframes
@@ -500,7 +516,7 @@ impl<'m> LocalTemplates<'m> {
     fn visible(&self, camera: &Camera, pose: &Rigid3, observed: &[Point3DId]) -> Vec<(Point3DId, Vec2)> {
         let mut votes: BTreeMap<ImageId, usize> = BTreeMap::new();
         for pid in observed {
-            for e in self.rec.point3d(*pid).map(|p| p.track.as_slice()).unwrap_or_default() {
+            for e in self.map.rec.point3d(*pid).map(|p| p.track.as_slice()).unwrap_or_default() {
                 if self.of_keyframe.contains_key(&e.image_id) {
                     *votes.entry(e.image_id).or_default() += 1;
                 }

@@ -52,9 +52,9 @@ pub enum LocalMapSearch {
     /// Nowhere: a frame keeps the observations it matched.
     Off,
     /// In the frames between keyframes, whose poses are refined on what is found.
-    #[default]
     Frames,
     /// In the keyframes too, before the final bundle adjustment: longer tracks in the map.
+    #[default]
     All,
 }
 
@@ -598,7 +598,7 @@ pub struct RefineOptions {
     pub refine_observations: bool,
     /// Where frames are searched for their local map's unmatched tracks.
     ///
-    /// A frame between keyframes is localised from its matches to them, a third to a half of the map points it sees; the refinement projects the other points of the keyframes that share its matches and aligns their templates where they land, so its pose rests on every point it sees (found as direct methods track). `frames` (default): the frames between keyframes; the synthetic room's ATE falls by 45 %, the Strecha sets gain 1-2 %, TUM and KITTI are level. `all`: the keyframes too, before the final bundle adjustment, whose tracks get longer; the Strecha sets and the synthetic rooms then end at or near COLMAP's error, but a drive's scale moves (KITTI odometry 30 % worse). A frame whose own matches mostly fail to align (blur, rolling shutter) is not searched (docs/benchmarks.md, "The local map searched in every frame").
+    /// A frame between keyframes is localised from its matches to them, a third to a half of the map points it sees; the refinement projects the other points of the keyframes that share its matches and aligns their templates where they land, so its pose rests on every point it sees (found as direct methods track). `frames`: the frames between keyframes; the synthetic room's ATE falls by 45 %, the Strecha sets gain 1-2 %, TUM and KITTI are level. `all` (default): the keyframes too, before the final bundle adjustment, whose tracks get longer; the synthetic rooms then end under COLMAP's error and the Strecha sets near it, TUM and KITTI level. A track found where the alignment predicts its position loosely (over 0.07 px) is left out: all of them made KITTI odometry 30 % worse. A frame whose own matches mostly fail to align (blur, rolling shutter) is not searched (docs/benchmarks.md, "The local map searched in every frame", "Found tracks gated by their alignment's precision").
     #[cfg_attr(feature = "cli", arg(long, value_name = "WHERE", default_value_t = RefineOptions::default().search_local_map))]
     pub search_local_map: LocalMapSearch,
     /// Cauchy loss in the final BAs, at the map's median reprojection error.
@@ -646,7 +646,7 @@ impl Default for RefineOptions {
             localize_all_frames: true,
             refine_all_frames: false,
             refine_observations: true,
-            search_local_map: LocalMapSearch::Frames,
+            search_local_map: LocalMapSearch::All,
             robust_final_ba: false,
             final_ba_min_track: 3,
             match_overlapping: 0,

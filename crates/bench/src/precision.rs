@@ -15,7 +15,10 @@
 //! * of the final model (`colslam run`'s output): mean and median
 //!   reprojection error over all observations, the track-length
 //!   distribution (mean, median, buckets 2, 3, 4-5, 6-10, >10);
-//! * ATE RMSE (all frames, Sim(3)) and time per frame.
+//! * ATE RMSE (all frames, Sim(3)) and time per frame;
+//! * with `--stages`, all of it once per final refinement stage
+//!   ([`STAGES`]), each run adding one stage to the one before, so each
+//!   stage's change of the ATE shows.
 //!
 //! Extra flags for `colslam run` follow `--`, e.g. `colslam bench precision
 //! --only synthetic-150 -- --subpixel-keypoints false`.
@@ -42,6 +45,17 @@ pub const INLIER_PX: f64 = 4.0;
 /// Track-length buckets of the report: (label, smallest, largest).
 pub const TRACK_BUCKETS: [(&str, usize, usize); 5] =
     [("2", 2, 2), ("3", 3, 3), ("4-5", 4, 5), ("6-10", 6, 10), (">10", 11, usize::MAX)];
+
+/// The final refinement stages `--stages` measures, in the order the
+/// pipeline adds them: a label and the `colslam run` flags that stop the
+/// pipeline after the stage (the last is the default pipeline).
+pub const STAGES: [(&str, &[&str]); 5] = [
+    ("two-view tracks in the final BA", &["--refine-observations", "false", "--final-ba-min-track", "2"]),
+    ("long tracks only", &["--refine-observations", "false"]),
+    ("observations aligned", &["--search-local-map", "off"]),
+    ("frames' local maps searched", &["--search-local-map", "frames"]),
+    ("keyframes' local maps searched (default)", &[]),
+];
 
 /// Arguments of `bench precision`.
 #[derive(Debug, clap::Args)]
@@ -71,6 +85,11 @@ pub struct Args {
     /// Only the keypoint localisation error; no runs.
     #[arg(long)]
     pub keypoints_only: bool,
+    /// Run each sequence once per final refinement stage, so each stage's ATE shows.
+    ///
+    /// The stages, each run adding one to the one before: two-view tracks in the final BA, long tracks only, observations aligned, the frames' local maps searched, the keyframes' too (the default pipeline).
+    #[arg(long, conflicts_with = "keypoints_only")]
+    pub stages: bool,
     /// Image size of generated synthetic sequences, WxH (default 640x480).
     #[arg(long, hide = true)]
     pub synthetic_size: Option<String>,
@@ -265,6 +284,8 @@ pub fn model_stats(dir: &Path) -> Result<ModelStats> {
 pub struct PrecisionRow {
     /// Sequence name.
     pub sequence: String,
+    /// The final refinement stage the run ends with (`--stages`).
+    pub stage: Option<String>,
     /// Keypoint localisation error with integer keypoints (synthetic only).
     pub keypoints_integer: Option<LocalisationError>,
     /// Keypoint localisation error with sub-pixel keypoints (synthetic only).
@@ -324,12 +345,12 @@ pub fn run(args: &Args, quiet: bool, threads: Option<usize>) -> Result<()> {
     let out = output_root(&args.out)?;
     let seqs = sequences::selected(&args.suite, args.data.as_deref(), &args.only, size, &out)?;
     let ctx = Ctx::new(None, out.clone(), args.timeout, threads, quiet)?;
-    let setting = args.run_flags.join(" ");
     let mut rows = Vec::new();
     for seq in &seqs {
         let t = Instant::now();
         let mut row = PrecisionRow {
             sequence: seq.name.clone(),
+            stage: None,
             keypoints_integer: None,
             keypoints_subpixel: None,
             status: None,
@@ -345,14 +366,36 @@ pub fn run(args: &Args, quiet: bool, threads: Option<usize>) -> Result<()> {
             row.keypoints_integer = Some(integer);
             row.keypoints_subpixel = Some(subpixel);
         }
-        if !args.keypoints_only {
-            run_sequence(&ctx, seq, &setting, &args.run_flags, &mut row);
+        let prepared = if args.keypoints_only { Ok(()) } else { suite::prepare(seq, ctx.quiet) };
+        if let Err((status, reason)) = &prepared {
+            row.status = Some(status.label().to_string());
+            row.reason = Some(reason.clone());
+        }
+        if args.stages && prepared.is_ok() {
+            for (k, (label, flags)) in STAGES.iter().enumerate() {
+                let mut stage = PrecisionRow { stage: Some((*label).to_string()), ..row.clone() };
+                if k > 0 {
+                    // The keypoint errors do not depend on the stage: once.
+                    (stage.keypoints_integer, stage.keypoints_subpixel) = (None, None);
+                }
+                let mut all: Vec<String> = flags.iter().map(|f| (*f).to_string()).collect();
+                all.extend(args.run_flags.iter().cloned());
+                run_sequence(&ctx, seq, &format!("stage{k}"), &all, &mut stage);
+                if !quiet {
+                    eprintln!("{} ({label}): {}", seq.name, stage.status.as_deref().unwrap_or("measured"));
+                }
+                rows.push(stage);
+            }
+        } else {
+            if !args.keypoints_only && prepared.is_ok() {
+                run_sequence(&ctx, seq, &args.run_flags.join(" "), &args.run_flags, &mut row);
+            }
+            if !quiet {
+                eprintln!("{}: {}", seq.name, row.status.as_deref().unwrap_or("measured"));
+            }
+            rows.push(row);
         }
         tracing::info!("{}: {:.1} s", seq.name, t.elapsed().as_secs_f64());
-        if !quiet {
-            eprintln!("{}: {}", seq.name, row.status.as_deref().unwrap_or("measured"));
-        }
-        rows.push(row);
     }
     let report = PrecisionReport {
         command: std::env::args().collect::<Vec<_>>().join(" "),
@@ -371,13 +414,8 @@ pub fn run(args: &Args, quiet: bool, threads: Option<usize>) -> Result<()> {
     Ok(())
 }
 
-/// Prepares and runs colslam on `seq` (the suite's runner) and reads its model.
+/// Runs colslam on the prepared `seq` (the suite's runner) and reads its model.
 fn run_sequence(ctx: &Ctx, seq: &sequences::Sequence, setting: &str, flags: &[String], row: &mut PrecisionRow) {
-    if let Err((status, reason)) = suite::prepare(seq, ctx.quiet) {
-        row.status = Some(status.label().to_string());
-        row.reason = Some(reason);
-        return;
-    }
     let run = suite::run_colslam(ctx, seq, setting, flags, 1);
     row.status = Some(run.status.label().to_string());
     row.reason = run.reason.clone();
@@ -445,6 +483,9 @@ pub fn markdown(r: &PrecisionReport) -> String {
         s += "\n";
     }
     let runs: Vec<&PrecisionRow> = r.rows.iter().filter(|x| x.status.is_some()).collect();
+    if runs.iter().any(|x| x.stage.is_some()) {
+        s += &stage_table(&runs);
+    }
     if !runs.is_empty() {
         let flags = if r.run_flags.is_empty() { "default options".to_string() } else { r.run_flags.join(" ") };
         s += &format!("## Final model ({flags})\n\n");
@@ -456,9 +497,13 @@ pub fn markdown(r: &PrecisionReport) -> String {
         s += "|---|---|---|---|---|---|---|---|---|\n";
         for row in &runs {
             let m = row.model.as_ref();
+            let name = match &row.stage {
+                Some(stage) => format!("{} ({stage})", row.sequence),
+                None => row.sequence.clone(),
+            };
             s += &format!(
                 "| {} | {} | {} | {} | {} | {} | {} / {} | {} / {} | {} |\n",
-                row.sequence,
+                name,
                 row.status.as_deref().unwrap_or("-"),
                 opt(row.ate_rmse_m, 100.0, 3),
                 opt(row.ms_per_frame, 1.0, 1),
@@ -481,9 +526,79 @@ pub fn markdown(r: &PrecisionReport) -> String {
     s
 }
 
+/// The ATE of each sequence after each stage, and its ratio to the stage
+/// before (`--stages`).
+fn stage_table(runs: &[&PrecisionRow]) -> String {
+    let mut s = String::from("## ATE by final refinement stage (cm; ratio to the stage before)\n\n| sequence |");
+    for (label, _) in STAGES {
+        s += &format!(" {label} |");
+    }
+    s += "\n|---|";
+    s += &"---|".repeat(STAGES.len());
+    s += "\n";
+    let mut names: Vec<&str> = Vec::new();
+    for row in runs {
+        if !names.contains(&row.sequence.as_str()) {
+            names.push(&row.sequence);
+        }
+    }
+    for name in names {
+        s += &format!("| {name} |");
+        let mut before: Option<f64> = None;
+        for (label, _) in STAGES {
+            let ate = runs
+                .iter()
+                .find(|r| r.sequence == name && r.stage.as_deref() == Some(label))
+                .and_then(|r| r.ate_rmse_m)
+                .filter(|a| a.is_finite());
+            let ratio = match (ate, before) {
+                (Some(a), Some(b)) if b > 0.0 => format!(" ({:.2}x)", a / b),
+                _ => String::new(),
+            };
+            s += &format!(" {}{ratio} |", opt(ate, 100.0, 3));
+            before = ate;
+        }
+        s += "\n";
+    }
+    s + "\n"
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    fn staged(sequence: &str, stage: &str, ate: Option<f64>) -> PrecisionRow {
+        PrecisionRow {
+            sequence: sequence.into(),
+            stage: Some(stage.into()),
+            keypoints_integer: None,
+            keypoints_subpixel: None,
+            status: Some("ok".into()),
+            reason: None,
+            ate_rmse_m: ate,
+            ms_per_frame: None,
+            wall_s: None,
+            model: None,
+        }
+    }
+
+    #[test]
+    fn the_stage_table_gives_each_stage_its_ratio_to_the_one_before() {
+        let mut rows: Vec<PrecisionRow> = STAGES
+            .iter()
+            .enumerate()
+            .map(|(k, (label, _))| staged("room", label, Some(0.004 / (k + 1) as f64)))
+            .collect();
+        // A failed run shows as a dash, and the next stage has no ratio.
+        rows[2].ate_rmse_m = None;
+        rows.push(staged("fountain", STAGES[0].0, Some(0.003)));
+        let refs: Vec<&PrecisionRow> = rows.iter().collect();
+        let table = stage_table(&refs);
+        let room = table.lines().find(|l| l.starts_with("| room |")).unwrap();
+        assert_eq!(room, "| room | 0.400 | 0.200 (0.50x) | - | 0.100 | 0.080 (0.80x) |");
+        let fountain = table.lines().find(|l| l.starts_with("| fountain |")).unwrap();
+        assert_eq!(fountain, "| fountain | 0.300 | - | - | - | - |");
+    }
 
     #[test]
     fn pairs_spread_over_the_sequence() {

@@ -572,11 +572,12 @@ const MIN_ALIGNED_SHARE: f64 = 0.5;
 /// no detection behind it: it is where the patch settled from the map's
 /// own projection. With every one of them kept, KITTI odometry's drive was
 /// 22-40 % less accurate over three seeds; kept where the alignment
-/// predicts a quarter pixel or better (a third of them there, two thirds
-/// on the synthetic room), the drive is level and the rooms and the
-/// Strecha sets keep their gain. What the gate tells apart is the
-/// prediction, not the number: as many found tracks kept at random, or
-/// only those whose patch is not an edge, left most of KITTI's loss
+/// predicts a quarter pixel or better (about half of them there, most on
+/// the synthetic room), the drive is level and the rooms and the Strecha
+/// sets keep their gain. What the gate tells apart is the prediction, not
+/// the number: a third of the found tracks kept at random left most of
+/// KITTI's loss where a third kept by a tighter gate did not, and so did
+/// keeping only those whose patch is not an edge
 /// (docs/benchmarks.md, "Found tracks gated by their alignment's
 /// precision"). The observations a frame detected itself are not gated:
 /// their position is the detector's, whatever the alignment does.

@@ -230,13 +230,15 @@ impl SmoothImage {
             }
         }
         let (mean, std) = sample(&p, &mut values)?;
-        // Weighted correlation of the two normalised patches.
-        let (mut vt, mut vv, mut tt) = (0.0, 0.0, 0.0);
+        // Weighted correlation of the two normalised patches, and their
+        // weighted sum of squared differences.
+        let (mut vt, mut vv, mut tt, mut rss) = (0.0, 0.0, 0.0, 0.0);
         for ((v, t), w) in values.iter().zip(&template.values).zip(&weights) {
             let (v, t) = ((v - mean) / std, f64::from(*t));
             vt += w * v * t;
             vv += w * v * v;
             tt += w * t * t;
+            rss += w * (v - t).powi(2);
         }
         let zncc = vt / (vv * tt).sqrt().max(f64::MIN_POSITIVE);
         // The translation's covariance: the residuals' variance times the
@@ -246,13 +248,7 @@ impl SmoothImage {
         // neighbouring samples over about 4 pi sigma^2 pixels (the sum of
         // the Gaussian's autocorrelation), so the samples count as that
         // many times fewer independent ones; without this the prediction
-        // was 2.7-3.2x short of the errors of a noisy image (the test below).
-        let rss: f64 = values
-            .iter()
-            .zip(&template.values)
-            .zip(&weights)
-            .map(|((v, t), w)| w * ((v - mean) / std - f64::from(*t)).powi(2))
-            .sum();
+        // was 2.7-3.7x short of the errors of a noisy image (the test below).
         let correlated = 4.0 * std::f64::consts::PI * SMOOTHING_SIGMA * SMOOTHING_SIGMA;
         let variance = correlated * rss / (PATCH_LEN - 6) as f64;
         let block = inverse.fixed_view::<2, 2>(0, 0).into_owned() * variance;
@@ -440,13 +436,7 @@ mod tests {
         let a = GradientImage::new(&texture(64, 64, 0.0, 0.0));
         let truth = Vec2::new(0.6, -0.4);
         let clean = texture(64, 64, truth.x, truth.y);
-        let mut state = 0x2545_f491_4f6c_dd1d_u64;
-        let mut uniform = move || {
-            state ^= state << 13;
-            state ^= state >> 7;
-            state ^= state << 17;
-            (state >> 11) as f64 / (1u64 << 53) as f64 - 0.5
-        };
+        let mut rng = colslam_geometry::SplitMix64::new(7);
         let mut spreads = Vec::new();
         for amplitude in [0.0, 20.0, 60.0] {
             let (mut err2, mut predicted, mut n) = (0.0, 0.0, 0.0);
@@ -454,7 +444,7 @@ mod tests {
                 let data: Vec<u8> = clean
                     .data()
                     .iter()
-                    .map(|v| (f64::from(*v) + amplitude * uniform()).clamp(0.0, 255.0) as u8)
+                    .map(|v| (f64::from(*v) + amplitude * rng.uniform(-0.5, 0.5)).clamp(0.0, 255.0) as u8)
                     .collect();
                 let b = SmoothImage::new(&Image::from_vec(64, 64, 1, data).unwrap());
                 let center = Vec2::new(20.5 + f64::from(trial % 5) * 6.0, 20.5 + f64::from(trial / 5) * 3.0);

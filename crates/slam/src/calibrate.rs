@@ -24,6 +24,7 @@ use crate::pipeline::Slam;
 use colslam_camera::Camera;
 use colslam_optim::LossFunction;
 use colslam_scene::Reconstruction;
+use colslam_sfm::SfmError;
 use colslam_sfm::bundle::{BundleOptions, adjust_global};
 use serde::Serialize;
 
@@ -93,7 +94,7 @@ fn prefix_map(
 /// The cost of `rec` after a bundle adjustment of its poses and points
 /// with every camera's focal length set to `f` (COLMAP pixel convention:
 /// the principal point is not moved).
-fn cost_at(rec: &Reconstruction, f: f64) -> Result<f64, SlamError> {
+fn cost_at(rec: &Reconstruction, f: f64) -> Result<f64, SfmError> {
     let mut rec = rec.clone();
     let ids: Vec<_> = rec.cameras().map(|c| c.id).collect();
     for id in ids {
@@ -115,10 +116,63 @@ fn cost_at(rec: &Reconstruction, f: f64) -> Result<f64, SlamError> {
 /// at it, relative to the cost at `f`: the [`FocalEstimate::sharpness`] of
 /// a map whose BA refined the focal length to `f`, so near 0 when its
 /// views do not constrain it (three bundle adjustments of a copy).
-pub(crate) fn focal_sharpness(rec: &Reconstruction, f: f64) -> Result<f64, SlamError> {
+pub(crate) fn focal_sharpness(rec: &Reconstruction, f: f64) -> Result<f64, SfmError> {
     let at = cost_at(rec, f)?;
     let sides = 0.5 * (cost_at(rec, f / 1.1)? + cost_at(rec, f * 1.1)?);
     Ok((sides - at) / at.max(f64::MIN_POSITIVE))
+}
+
+/// What the views of a map say about its focal length near `f`
+/// ([`focal_profile`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(crate) struct FocalProfile {
+    /// The focal length's relative standard deviation (infinite when the
+    /// cost does not curve up around `f`).
+    pub spread: f64,
+    /// How much better, in chi-square, the better of the focal lengths 10 %
+    /// either side fits than `f` (0 when neither does): the evidence that
+    /// `f` is wrong, however flat the cost is.
+    pub drop: f64,
+}
+
+/// The profile of a map's cost over its focal length: the cost with the
+/// focal length fixed at `f` and 10 % either side ([`cost_at`], each
+/// re-fitting the poses and points, so the marginal, not the conditional,
+/// uncertainty), a parabola in log f. The best fit's cost is the
+/// residuals' variance times half the degrees of freedom (two per
+/// observation, less three per point and six per pose, plus the seven of
+/// the gauge), which turns costs into chi-square: one standard deviation
+/// is where the parabola has risen by one. `f` need not be the minimum: a
+/// focal length held at a guess is judged by the same three costs.
+pub(crate) fn focal_profile(rec: &Reconstruction, f: f64) -> Result<FocalProfile, SfmError> {
+    let step = 1.1_f64.ln();
+    let (below, at, above) = (cost_at(rec, f / 1.1)?, cost_at(rec, f)?, cost_at(rec, f * 1.1)?);
+    let dof =
+        2 * rec.num_observations() as i64 - 3 * rec.num_points3d() as i64 - 6 * rec.num_registered_images() as i64 + 7;
+    if dof <= 0 {
+        return Ok(FocalProfile { spread: f64::INFINITY, drop: 0.0 });
+    }
+    // cost(t) = a t^2 + b t + at, t in steps of `step`.
+    let a = 0.5 * (below + above) - at;
+    let b = 0.5 * (above - below);
+    let least = below.min(at).min(above);
+    // The best fit: the parabola's vertex where it curves up (never above
+    // the costs tried), else the least cost tried.
+    let best = if a > 0.0 { (at - b * b / (4.0 * a)).clamp(0.0, least) } else { least };
+    // Half the residuals' variance: one unit of chi-square in cost.
+    let unit = best / dof as f64;
+    let chi2 = |cost: f64| {
+        if cost <= 0.0 {
+            0.0
+        } else if unit > 0.0 {
+            cost / unit
+        } else {
+            // Exact observations: any change is decisive.
+            f64::INFINITY
+        }
+    };
+    let spread = if a > 0.0 { step / chi2(a).sqrt() } else { f64::INFINITY };
+    Ok(FocalProfile { spread, drop: chi2(at - least) })
 }
 
 /// The coarse grid of the search, as factors of the starting focal length:

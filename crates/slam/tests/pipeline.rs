@@ -466,19 +466,41 @@ fn the_kitti_clip_without_calibration_is_one_map_from_the_guessed_focal_length()
     let source = colslam_io::open_source(&file, &colslam_io::SourceOptions::default()).expect("source");
     let frames: Vec<Frame> = source.map(|f| f.expect("frame")).collect();
     assert_eq!(frames.len(), 268);
+    let focal = one_map_from_the_guess("clip", &frames, SlamOptions::default().seed, 265);
+    assert!((650.0..=800.0).contains(&focal), "focal length {focal:.1} px");
+}
+
+/// `frames` run without calibration from the run's own guess
+/// (`run::guessed_focal`, principal point at the centre, refined), which
+/// must make one map of at least `min_frames` frames; its focal length.
+fn one_map_from_the_guess(name: &str, frames: &[Frame], seed: u64, min_frames: usize) -> f64 {
     let (w, h) = (frames[0].image.width(), frames[0].image.height());
     let start = colslam_slam::run::guessed_focal(w as f64, h as f64);
     let guess = colslam_slam::calibrate::centred_camera(w as u32, h as u32, start);
     let mut opts = SlamOptions::default();
     opts.refine.refine_intrinsics = true;
-    let r = run(&frames, &guess, opts, EventSink::none());
+    opts.seed = seed;
+    let r = run(frames, &guess, opts, EventSink::none());
     let notes = &r.stats.notes;
-    assert_eq!(r.maps.len(), 1, "notes: {notes:?}");
+    assert_eq!(r.maps.len(), 1, "{name}: notes: {notes:?}");
     let localized = r.maps[0].poses.len();
-    assert!(localized >= 265, "only {localized} of 268 frames localised; notes: {notes:?}");
+    let n = frames.len();
+    assert!(localized >= min_frames, "{name}: only {localized} of {n} frames localised; notes: {notes:?}");
     let focal = r.maps[0].map.camera().expect("camera").focal_x();
-    eprintln!("clip: {localized} frames, focal {start:.1} -> {focal:.1} px");
-    assert!((650.0..=800.0).contains(&focal), "focal length {focal:.1} px");
+    eprintln!("{name}: {localized} frames, focal {start:.1} -> {focal:.1} px");
+    focal
+}
+
+#[test]
+fn kitti_without_calibration_is_one_map_from_the_guessed_focal_length() {
+    // The run's own guess, 683 px (5 % short of the calibration's 718.9).
+    // An initial pair moving straight ahead fits any focal length: its
+    // two-view BA took the guess to 504 px in 50 iterations on this seed,
+    // and the map broke at frame 34 (273 of 300 frames in 2 maps). Held
+    // where the two views leave it freer than the guess is, one map.
+    let Some((_, calibrated, frames)) = dataset_frames("kitti_odom00_first300") else { return };
+    let focal = one_map_from_the_guess("kitti", &frames, 1, 295);
+    assert!((focal / calibrated.focal_x() - 1.0).abs() < 0.05, "focal length {focal:.1} px");
 }
 
 #[test]
@@ -608,6 +630,11 @@ fn a_guessed_focal_length_is_refined_to_the_synthetic_one() {
     // the refinement stays 1-4 % off whatever the loss. The pinhole also
     // from half its focal length: a telephoto, whose `run::guessed_focal`
     // is short (the room ends at 525.5 px from 262 with `colslam run`).
+    // The run reads its frames again, as `colslam run` does: from COLMAP's
+    // prior the room's first two views barely tell the focal length
+    // (chi-square 1.9 better at 691 px) and hold it, and without the
+    // observations' refinement the pinhole then ends 1.37 % long (+0.24 %
+    // with it; docs/benchmarks.md).
     let half = Some(0.5 * SynthOptions::default().focal);
     for (frames, distortion, start) in [(150, None, None), (150, None, half), (90, Some([-0.1, 0.02, 0.0, 0.0]), None)]
     {
@@ -622,7 +649,7 @@ fn a_guessed_focal_length_is_refined_to_the_synthetic_one() {
         opts.refine.refine_intrinsics = true;
         opts.refine.estimate_distortion = distortion.is_some();
         opts.refine.robust_intrinsics = true;
-        let r = run(&frames, &guess, opts, EventSink::none());
+        let r = run_reading_again(&frames, &guess, opts, Vec::new());
         assert_eq!(r.maps.len(), 1, "notes: {:?}", r.stats.notes);
         let camera = r.maps[0].map.camera().expect("camera").clone();
         let (f, truth) = (camera.focal_x(), synth.focal);

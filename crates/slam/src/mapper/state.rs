@@ -85,6 +85,23 @@ pub struct Mapper {
 /// be taken for outliers and hold it there.
 const FOCAL_SETTLED: f64 = 0.01;
 
+/// Relative standard deviation of the focal length
+/// ([`crate::calibrate::FocalProfile::spread`]) under which the two views
+/// of an initial pair fix it: they know it better than the guess from the
+/// image area does (5-9 % off on the suite's cameras). The Strecha sets'
+/// pairs measure 0.8-6.4 %, the synthetic room's 13 %, KITTI's and the
+/// clip's have no curvature at all.
+const MAX_FOCAL_SIGMA: f64 = 0.1;
+
+/// Chi-square by which a focal length 10 % away must fit two views better
+/// ([`crate::calibrate::FocalProfile::drop`]) for them to refute the one
+/// they were posed with, however loosely they fix it: the 90 % point of
+/// one degree of freedom. The KITTI drive's initial pairs drop 0.2 (their
+/// BAs, refining, ran out of iterations taking the guess of 683 px to
+/// 504-750 px, and the maps broke), the clip's 0.01, the entry set's 17.6
+/// (docs/benchmarks.md).
+const MIN_FOCAL_DROP: f64 = 2.71;
+
 /// Observations of tracks of `--final-ba-min-track` views or more below
 /// which an image keeps its shorter tracks in the final BAs' pose estimate:
 /// a pose resting on a handful of points is worse off without the rest.
@@ -244,9 +261,10 @@ impl Mapper {
     /// (Sturm 2001), which a car's level camera gives: the KITTI runs'
     /// consecutive initial frames ran the guess of 1489 px to 4070 px
     /// (kitti_odom00_first300) and 4391 px (the clip) in their two-view BA.
-    /// A pair posed by its essential matrix keeps refining it: the Strecha
-    /// sets' and the synthetic room's two-view BAs move the guess most of
-    /// the way to the truth (docs/benchmarks.md).
+    /// A pair posed by its essential matrix refines it where its views say
+    /// something about it ([`Self::views_fix_focal`]): the Strecha sets'
+    /// two-view BAs move the guess most of the way to the truth, where a
+    /// car's forward pair would let it run.
     ///
     /// Nor while the map has fewer registered images than the one the
     /// starting camera was settled in ([`Self::camera_support`]): a map of
@@ -258,6 +276,31 @@ impl Mapper {
     pub(super) fn constrains_focal(&self) -> bool {
         let images = self.rec.num_registered_images();
         !(self.planar_start && images < 3) && images >= self.camera_support
+    }
+
+    /// Whether the map's views tell anything about the focal length:
+    /// measured for the two views of an initial pair
+    /// ([`crate::calibrate::focal_profile`]: they fix it within
+    /// [`MAX_FOCAL_SIGMA`] or refute the guess by [`MIN_FOCAL_DROP`]), taken
+    /// for granted from the third view on. Two views whose optical axes meet
+    /// (Sturm 2001), as a car's forward drive gives, leave it free however
+    /// their pose was found (the KITTI drive's initial pairs are posed by
+    /// their essential matrix); a third view off the pair's plane of motion
+    /// constrains it, and the measurement (three BAs) would cost more, with
+    /// BAs of a growing map that stop short of convergence as noise.
+    pub(super) fn views_fix_focal(&self) -> Result<bool, SfmError> {
+        let images = self.rec.num_registered_images();
+        if images >= 3 {
+            return Ok(true);
+        }
+        let profile = crate::calibrate::focal_profile(&self.rec, self.focal()?)?;
+        tracing::debug!(
+            "map {}: two views fix the focal length to {:.2} % and refute it by chi-square {:.2}",
+            self.index,
+            100.0 * profile.spread,
+            profile.drop
+        );
+        Ok(profile.spread <= MAX_FOCAL_SIGMA || profile.drop >= MIN_FOCAL_DROP)
     }
 
     /// Notes that a bundle adjustment may have refined the intrinsics.
@@ -440,8 +483,12 @@ impl Mapper {
             ba.ba.loss = final_ba_loss(ba.ba.loss, FINAL_BA_LOSS_SCALE * scale);
             ba.ba.max_iterations = ROBUST_FINAL_BA_MAX_ITERATIONS;
         }
-        // Held: refined intrinsics the map's views cannot fix yet.
-        let held = opts.refine.refine_intrinsics && !self.constrains_focal();
+        // Held: refined intrinsics the map's views cannot fix yet; the
+        // focal length's own test only where the focal length is refined
+        // (a calibration's residual radial term is not).
+        let refines_focal = ba.intrinsics != RefinedIntrinsics::FirstRadial;
+        let held = opts.refine.refine_intrinsics
+            && !(self.constrains_focal() && (!refines_focal || self.views_fix_focal()?));
         let refine = opts.refine.refine_intrinsics && !held;
         let frees_centre = final_ba && self.free_principal_point(&mut ba, opts)?;
         self.log_global_probe("before");

@@ -1511,6 +1511,64 @@ fn two_views_fix_the_focal_length_unless_posed_by_a_homography() {
     assert!(map.constrains_focal(), "a third view");
 }
 
+/// `frame`'s keypoints moved by Gaussian noise of `sigma_px` (its pixels,
+/// keypoints and normalised coordinates alike).
+fn noisy(mut frame: FrameData, camera: &Camera, sigma_px: f64, seed: u64) -> FrameData {
+    let mut r = SplitMix64::new(seed);
+    for (k, px) in frame.pixels.iter_mut().enumerate() {
+        *px += Vec2::new(sigma_px * r.normal(), sigma_px * r.normal());
+        frame.normalized[k] = camera.cam_from_img(px).expect("pinhole");
+        let kp = &mut frame.features.keypoints[k];
+        (kp.x, kp.y) = ((px.x - 0.5) as f32, (px.y - 0.5) as f32);
+    }
+    frame
+}
+
+#[test]
+fn two_views_moving_straight_ahead_hold_the_focal_length_where_an_orbit_refines_it() {
+    // Two views whose optical axes meet leave the focal length free
+    // (Sturm 2001), whatever pose the pair's essential matrix gives: a
+    // car's forward drive. Two views turning about the scene fix it. The
+    // pair's bundle adjustment refines a guess 10 % long only in the
+    // second case (`MAX_FOCAL_SIGMA`); with noisy keypoints the first would
+    // move it along a flat valley.
+    // The orbit's second view also tilts and rises, so that its axis
+    // passes beside the first's: two axes on one target are critical too.
+    let target = Vec3::new(1.5, 0.0, 9.0);
+    let orbit: Vec<Rigid3> = [(0.0, 0.0), (0.5, 0.3)]
+        .iter()
+        .map(|&(turn, tilt): &(f64, f64)| {
+            let r = Quat::from_euler_angles(tilt, -turn, 0.0);
+            let centre = target - 9.0 * Vec3::new(turn.sin(), 0.0, turn.cos()) - Vec3::new(0.0, 10.0 * tilt, 0.0);
+            Rigid3::new(r, -(r * centre))
+        })
+        .collect();
+    let ahead: Vec<Rigid3> =
+        [0.0, 2.0].iter().map(|&z| Rigid3::new(Quat::identity(), -Vec3::new(1.5, 0.0, z))).collect();
+    let mut o = opts();
+    (o.refine.refine_intrinsics, o.refine.refine_distortion) = (true, false);
+    let focal_after_init = |poses: Vec<Rigid3>| {
+        let scene = Scene::new(poses, slab_points(500, 1), 7);
+        let c = &scene.camera;
+        let long = Camera::pinhole(c.width, c.height, 1.1 * c.focal_x(), 1.1 * c.focal_y(), c.params[2], c.params[3]);
+        let frames: Vec<FrameData> =
+            scene.frames(&[0, 1]).into_iter().enumerate().map(|(k, f)| noisy(f, c, 0.5, k as u64)).collect();
+        let (map, ..) =
+            Mapper::initialize(0, &frames, &scene.pair_matches(&[0, 1]), (&long, 0), &o, &mut Default::default())
+                .unwrap()
+                .expect("initialises");
+        let profile = crate::calibrate::focal_profile(&map.rec, map.focal().unwrap()).unwrap();
+        (map.focal().unwrap() / c.mean_focal(), profile.spread, map.views_fix_focal().unwrap())
+    };
+    let (turned, turned_sigma, turned_fixed) = focal_after_init(orbit);
+    let (straight, straight_sigma, straight_fixed) = focal_after_init(ahead);
+    eprintln!("orbit: focal x{turned:.4}, spread {turned_sigma:.4}; ahead: x{straight:.4}, spread {straight_sigma:.4}");
+    assert!(turned_fixed && turned_sigma < 0.03, "orbit: spread {turned_sigma}");
+    assert!((turned - 1.0).abs() < 0.02, "orbit: focal x{turned}");
+    assert!(!straight_fixed && straight_sigma > 0.3, "ahead: spread {straight_sigma}");
+    assert_eq!(straight, 1.1, "ahead: held at the guess");
+}
+
 #[test]
 fn a_map_holds_a_camera_refined_over_more_images_than_it_has() {
     let scene = Scene::translating(6);

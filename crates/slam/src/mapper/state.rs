@@ -285,9 +285,11 @@ impl Mapper {
     /// for granted from the third view on. Two views whose optical axes meet
     /// (Sturm 2001), as a car's forward drive gives, leave it free however
     /// their pose was found (the KITTI drive's initial pairs are posed by
-    /// their essential matrix); a third view off the pair's plane of motion
-    /// constrains it, and the measurement (three BAs) would cost more, with
-    /// BAs of a growing map that stop short of convergence as noise.
+    /// their essential matrix). Larger maps are refined as before: the
+    /// measurement would cost three BAs each time, and the BAs of a growing
+    /// map stop short of convergence, which made its profile noise (TUM's
+    /// maps of three to five images measured concave ones and were held
+    /// into losing frames; docs/benchmarks.md).
     pub(super) fn views_fix_focal(&self) -> Result<bool, SfmError> {
         let images = self.rec.num_registered_images();
         if images >= 3 {

@@ -117,9 +117,14 @@ fn cost_at(rec: &Reconstruction, f: f64) -> Result<f64, SfmError> {
 /// a map whose BA refined the focal length to `f`, so near 0 when its
 /// views do not constrain it (three bundle adjustments of a copy).
 pub(crate) fn focal_sharpness(rec: &Reconstruction, f: f64) -> Result<f64, SfmError> {
-    let at = cost_at(rec, f)?;
-    let sides = 0.5 * (cost_at(rec, f / 1.1)? + cost_at(rec, f * 1.1)?);
-    Ok((sides - at) / at.max(f64::MIN_POSITIVE))
+    let [below, at, above] = costs_around(rec, f)?;
+    Ok((0.5 * (below + above) - at) / at.max(f64::MIN_POSITIVE))
+}
+
+/// [`cost_at`] 10 % below `f`, at it and 10 % above: what
+/// [`focal_sharpness`] and [`focal_profile`] read.
+fn costs_around(rec: &Reconstruction, f: f64) -> Result<[f64; 3], SfmError> {
+    Ok([cost_at(rec, f / 1.1)?, cost_at(rec, f)?, cost_at(rec, f * 1.1)?])
 }
 
 /// What the views of a map say about its focal length near `f`
@@ -146,7 +151,7 @@ pub(crate) struct FocalProfile {
 /// focal length held at a guess is judged by the same three costs.
 pub(crate) fn focal_profile(rec: &Reconstruction, f: f64) -> Result<FocalProfile, SfmError> {
     let step = 1.1_f64.ln();
-    let (below, at, above) = (cost_at(rec, f / 1.1)?, cost_at(rec, f)?, cost_at(rec, f * 1.1)?);
+    let [below, at, above] = costs_around(rec, f)?;
     let dof =
         2 * rec.num_observations() as i64 - 3 * rec.num_points3d() as i64 - 6 * rec.num_registered_images() as i64 + 7;
     if dof <= 0 {

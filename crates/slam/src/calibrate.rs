@@ -22,6 +22,7 @@ use crate::frame::FrameData;
 use crate::options::{RollingShutter, SlamOptions};
 use crate::pipeline::Slam;
 use colslam_camera::Camera;
+use colslam_geometry::Vec2;
 use colslam_optim::LossFunction;
 use colslam_scene::Reconstruction;
 use colslam_sfm::SfmError;
@@ -65,6 +66,23 @@ pub struct FocalEstimate {
 /// centre of a w-pixel row is at (w - 1) / 2).
 pub fn centred_camera(w: u32, h: u32, f: f64) -> Camera {
     Camera::simple_pinhole(w as u64, h as u64, f, (w as f64 - 1.0) / 2.0, (h as f64 - 1.0) / 2.0)
+}
+
+/// How far `distorted` puts the image's corners from where `undistorted`
+/// puts them, pixels (the larger over the four corners): the rays through
+/// the corners under `undistorted`'s pinhole part, projected by both. With
+/// the same pinhole part, the effect of `distorted`'s extra terms at the
+/// image border, where it is largest for a radial lens.
+pub fn corner_shift(distorted: &Camera, undistorted: &Camera) -> f64 {
+    let (w, h) = (undistorted.width as f64, undistorted.height as f64);
+    let (f, c) = (Vec2::new(undistorted.focal_x(), undistorted.focal_y()), undistorted.principal_point());
+    [(0.0, 0.0), (w, 0.0), (0.0, h), (w, h)]
+        .into_iter()
+        .map(|(x, y)| {
+            let ray = Vec2::new((x - c.x) / f.x, (y - c.y) / f.y);
+            (distorted.img_from_normalized(&ray) - undistorted.img_from_normalized(&ray)).norm()
+        })
+        .fold(0.0, f64::max)
 }
 
 /// The largest map the pipeline makes of `frames` with the focal length
@@ -349,6 +367,20 @@ mod tests {
                 frontend.process(&frame).unwrap_or_else(|e| panic!("features: {e}"))
             })
             .collect()
+    }
+
+    #[test]
+    fn a_radial_term_moves_the_farthest_corner_by_k_r_cubed_focal_lengths() {
+        // SIMPLE_RADIAL maps the normalised radius r to r (1 + k r^2): at a
+        // corner r is (half the diagonal) / f, and the shift k r^3 f. A
+        // principal point off the centre makes its farthest corner count.
+        let pinhole = Camera::simple_pinhole(640, 480, 500.0, 300.0, 240.0);
+        let radial = Camera { params: vec![500.0, 300.0, 240.0, 0.02], ..pinhole.with_radial_term() };
+        let r = (340.0_f64.powi(2) + 240.0_f64.powi(2)).sqrt() / 500.0;
+        let expected = 0.02 * r.powi(3) * 500.0;
+        let shift = corner_shift(&radial, &pinhole);
+        assert!((shift - expected).abs() < 1e-9, "shift {shift} px, expected {expected}");
+        assert_eq!(corner_shift(&pinhole, &pinhole), 0.0);
     }
 
     #[test]

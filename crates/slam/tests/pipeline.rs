@@ -466,14 +466,15 @@ fn the_kitti_clip_without_calibration_is_one_map_from_the_guessed_focal_length()
     let source = colslam_io::open_source(&file, &colslam_io::SourceOptions::default()).expect("source");
     let frames: Vec<Frame> = source.map(|f| f.expect("frame")).collect();
     assert_eq!(frames.len(), 268);
-    let focal = one_map_from_the_guess("clip", &frames, SlamOptions::default().seed, 265);
+    let r = one_map_from_the_guess("clip", &frames, SlamOptions::default().seed, 265);
+    let focal = r.maps[0].map.camera().expect("camera").focal_x();
     assert!((650.0..=800.0).contains(&focal), "focal length {focal:.1} px");
 }
 
 /// `frames` run without calibration from the run's own guess
 /// (`run::guessed_focal`, principal point at the centre, refined), which
-/// must make one map of at least `min_frames` frames; its focal length.
-fn one_map_from_the_guess(name: &str, frames: &[Frame], seed: u64, min_frames: usize) -> f64 {
+/// must make one map of at least `min_frames` frames.
+fn one_map_from_the_guess(name: &str, frames: &[Frame], seed: u64, min_frames: usize) -> SlamResult {
     let (w, h) = (frames[0].image.width(), frames[0].image.height());
     let start = colslam_slam::run::guessed_focal(w as f64, h as f64);
     let guess = colslam_slam::calibrate::centred_camera(w as u32, h as u32, start);
@@ -486,9 +487,9 @@ fn one_map_from_the_guess(name: &str, frames: &[Frame], seed: u64, min_frames: u
     let localized = r.maps[0].poses.len();
     let n = frames.len();
     assert!(localized >= min_frames, "{name}: only {localized} of {n} frames localised; notes: {notes:?}");
-    let focal = r.maps[0].map.camera().expect("camera").focal_x();
-    eprintln!("{name}: {localized} frames, focal {start:.1} -> {focal:.1} px");
-    focal
+    let camera = r.maps[0].map.camera().expect("camera");
+    eprintln!("{name}: {localized} frames, {:?} {:?} from {start:.1} px", camera.model, camera.params);
+    r
 }
 
 #[test]
@@ -499,8 +500,29 @@ fn kitti_without_calibration_is_one_map_from_the_guessed_focal_length() {
     // and the map broke at frame 34 (273 of 300 frames in 2 maps). Held
     // where the two views leave it freer than the guess is, one map.
     let Some((_, calibrated, frames)) = dataset_frames("kitti_odom00_first300") else { return };
-    let focal = one_map_from_the_guess("kitti", &frames, 1, 295);
+    let r = one_map_from_the_guess("kitti", &frames, 1, 295);
+    let focal = r.maps[0].map.camera().expect("camera").focal_x();
     assert!((focal / calibrated.focal_x() - 1.0).abs() < 0.05, "focal length {focal:.1} px");
+}
+
+#[test]
+fn undistorted_photos_without_calibration_keep_a_pinhole_camera() {
+    // Strecha's photos were undistorted with their calibration. Over 10^5
+    // residuals a radial term's cost gain is still significant on
+    // herzjesu (chi-square 108 with `colslam run`), but it moves the
+    // image's corners by under a pixel (k -0.0023, 0.96 px) and kept it
+    // costs the trajectory 7 %: the term needs `MIN_RADIAL_SHIFT_PX` too.
+    let Some((dir, calibrated, frames)) = dataset_frames("strecha_herzjesu_P25") else { return };
+    let r = one_map_from_the_guess("herzjesu", &frames, 0, 25);
+    let camera = r.maps[0].map.camera().expect("camera");
+    assert_eq!(camera.model, colslam_camera::CameraModelId::SimplePinhole, "params {:?}", camera.params);
+    let focal = camera.focal_x();
+    assert!((focal / calibrated.focal_x() - 1.0).abs() < 0.01, "focal length {focal:.1} px");
+    let gt = Trajectory::read_tum(&dir.join("groundtruth.txt")).expect("ground truth");
+    let ate = evaluate(&gt, &est_trajectory(&r), &EvalOptions::default()).expect("evaluate");
+    // 0.90 cm here (this pipeline does not refine the observations;
+    // `colslam run` 0.64 cm, calibrated 0.64 cm).
+    assert!(ate.ate_rmse < 0.011, "ATE {} m", ate.ate_rmse);
 }
 
 #[test]
@@ -647,7 +669,6 @@ fn a_guessed_focal_length_is_refined_to_the_synthetic_one() {
         let guess = colslam_camera::Camera::simple_pinhole(w as u64, h as u64, f0, cx, cy);
         let mut opts = SlamOptions::default();
         opts.refine.refine_intrinsics = true;
-        opts.refine.estimate_distortion = distortion.is_some();
         opts.refine.robust_intrinsics = true;
         let r = run_reading_again(&frames, &guess, opts, Vec::new());
         assert_eq!(r.maps.len(), 1, "notes: {:?}", r.stats.notes);

@@ -1,6 +1,7 @@
 //! The mapper's state and the steps that only read or reset it: accessors,
 //! filtering, the global refinement schedule, colouring.
 
+use crate::calibrate;
 use crate::error::SlamError;
 use crate::frame::{FrameData, FrameRecord};
 use crate::options::{GlobalBaTolerance, SlamOptions};
@@ -8,7 +9,7 @@ use crate::records::{RecordStore, SpillConfig};
 use crate::timing::{Stage, StageTimings};
 use colslam_camera::{Camera, CameraModelId};
 use colslam_scene::{CameraId, ImageId, Point3DId, Reconstruction, SceneError};
-use colslam_sfm::bundle::{BundleOptions, KeypointSigmas, RefinedIntrinsics, adjust_global, adjust_global_long_tracks};
+use colslam_sfm::bundle::{BundleOptions, KeypointSigmas, RefinedIntrinsics, adjust_global_long_tracks};
 use colslam_sfm::triangulator::complete_and_merge_all;
 use colslam_sfm::{CorrespondenceGraph, SfmError};
 use std::collections::HashMap;
@@ -77,6 +78,9 @@ pub struct Mapper {
     /// Set once mapping ended ([`Self::finalize`]): the global BAs from
     /// then on are the final ones (`--robust-final-ba`).
     pub(super) mapping_ended: bool,
+    /// The radial term was tried on this map's final camera
+    /// ([`Self::try_radial_distortion`]), kept or not.
+    radial_tried: bool,
 }
 
 /// Relative change of the focal length in a global BA under which it has
@@ -151,6 +155,15 @@ pub const RADIAL_MIN_KEYFRAMES: usize = 5;
 /// an undistorted camera (the gains measured: docs/benchmarks.md).
 pub const RADIAL_GAIN_CHI2: f64 = 10.83;
 
+/// The least a radial term tried at the end must move the image's corners
+/// to be kept, pixels ([`calibrate::corner_shift`]). Over 10^5 residuals
+/// the chi-square gain finds a fraction of a pixel significant: Strecha
+/// herzjesu's undistorted photos ask for k -0.0023 (0.96 px at the corners)
+/// at a gain of 108, and the term then costs its trajectory 7 %, where the
+/// lenses that need one move their corners 4.8 px (TUM fr1), 9 px (KITTI's
+/// rectified images) and 13-22 px (the synthetic lenses; docs/benchmarks.md).
+pub const MIN_RADIAL_SHIFT_PX: f64 = 2.0;
+
 /// Global refinements (BA, track completion, filtering) of a map whose
 /// camera was given a radial term.
 const RADIAL_REFINEMENTS: usize = 2;
@@ -201,6 +214,7 @@ impl Mapper {
             culled: 0,
             loops: Default::default(),
             mapping_ended: false,
+            radial_tried: false,
         }
     }
 
@@ -448,22 +462,36 @@ impl Mapper {
     }
 
     /// Frees the principal point in `ba`, a final BA (the map then carries
-    /// it), with `--refine-principal-point` when the intrinsics of a camera
-    /// without distortion terms are refined. Not with a distortion term,
-    /// estimated or still to be tried (`--estimate-distortion`): the two
-    /// trade (on the synthetic room with a barrel lens the principal point
-    /// ran 26 px off with the radial term, and absorbed the lens to 28 px
-    /// off before it). True when freed.
+    /// it), with `--refine-principal-point` when the intrinsics are refined:
+    /// a camera without distortion terms once no radial term is still to be
+    /// tried (`--estimate-distortion`), and the radial term the trial kept
+    /// together with it. Not before the trial: the freed principal point
+    /// absorbs part of a lens's distortion (28 px off on the synthetic room
+    /// with a barrel lens) and the term is then tried from there (that room
+    /// ended at 1.66 mm against 0.29 mm). A given calibration's distortion
+    /// terms keep it held. True when freed.
     fn free_principal_point(&self, ba: &mut BundleOptions, opts: &SlamOptions) -> Result<bool, SceneError> {
+        let settled =
+            self.radial_tried || (self.camera()?.model.extra_params_idxs().is_empty() && !self.radial_pending(opts)?);
         let free = opts.refine.refine_intrinsics
             && opts.refine.refine_principal_point
-            && !opts.refine.estimate_distortion
             && ba.intrinsics == RefinedIntrinsics::Calibration
-            && self.camera()?.model.extra_params_idxs().is_empty();
+            && settled;
         if free {
             ba.intrinsics = RefinedIntrinsics::WithPrincipalPoint;
         }
         Ok(free)
+    }
+
+    /// True while a radial term is still to be tried on this map's camera at
+    /// the end (`--estimate-distortion`): a refined one-focal pinhole camera
+    /// of a map with at least [`RADIAL_MIN_KEYFRAMES`] keyframes.
+    fn radial_pending(&self, opts: &SlamOptions) -> Result<bool, SceneError> {
+        Ok(opts.refine.refine_intrinsics
+            && opts.refine.estimate_distortion
+            && !self.radial_tried
+            && self.camera()?.model == CameraModelId::SimplePinhole
+            && self.keyframes.len() >= RADIAL_MIN_KEYFRAMES)
     }
 
     /// Global refinement (paper 3.6): global bundle adjustment to
@@ -501,13 +529,8 @@ impl Mapper {
         let kept = (opts.refine.refine_distortion || frees_centre).then(|| self.rec.clone());
         // Once mapping ended, the short tracks leave the pose estimate
         // (`--final-ba-min-track`); while it grows, the newest keyframe's
-        // points are all two-view tracks and it needs them. A radial term
-        // estimated from the final pinhole map (`--estimate-distortion`)
-        // shows most near the image border, which mostly short tracks see:
-        // without them the synthetic distorted lens ended 1.26 % long
-        // instead of 0.91 %.
-        let estimates_radial = opts.refine.refine_intrinsics && opts.refine.estimate_distortion;
-        let min_track = if self.mapping_ended && !estimates_radial { opts.refine.final_ba_min_track } else { 0 };
+        // points are all two-view tracks and it needs them.
+        let min_track = self.min_track(opts);
         let adjust = |rec: &mut Reconstruction, refine: bool| {
             adjust_global_long_tracks(rec, refine, &ba, min_track, MIN_LONG_TRACK_OBSERVATIONS)
         };
@@ -572,45 +595,60 @@ impl Mapper {
         self.mapping_ended = true;
         if self.rec.num_registered_images() >= 2 {
             self.global_refine(opts.final_ba_tolerance(), opts, timings)?;
-            if opts.refine.refine_intrinsics && opts.refine.estimate_distortion {
-                self.try_radial_distortion(opts, timings)?;
-            }
+            self.try_radial_distortion(opts, timings)?;
         }
         self.rec.update_point_errors()?;
         Ok(())
     }
 
+    /// The shortest track that enters a global BA: `--final-ba-min-track`
+    /// once mapping ended, every track before.
+    fn min_track(&self, opts: &SlamOptions) -> usize {
+        if self.mapping_ended { opts.refine.final_ba_min_track } else { 0 }
+    }
+
     /// Once the map is final, gives a refined one-focal pinhole camera (a
     /// guess or an estimate) a radial distortion term when the data ask for
     /// it: converged global BAs of the map with SIMPLE_PINHOLE and with
-    /// SIMPLE_RADIAL (k from 0), and the radial camera kept when its cost
-    /// gain is significant ([`RADIAL_GAIN_CHI2`]) and its parameters are
-    /// plausible (COLMAP's bogus-camera check). Only now: the map made with
-    /// the focal length alone carries k, while k freed from the first
-    /// keyframes trades against the focal length (docs/history.md).
+    /// SIMPLE_RADIAL (k from 0), both with the principal point held at the
+    /// centre (COLMAP's setting), and the radial camera kept when its cost
+    /// gain is significant ([`RADIAL_GAIN_CHI2`]), it moves the image's
+    /// corners by at least [`MIN_RADIAL_SHIFT_PX`] and its parameters are
+    /// plausible (COLMAP's bogus-camera check). Then the final refinements
+    /// free the principal point, with the term if kept. Only now: the map
+    /// made with the focal length alone carries k, while k freed from the
+    /// first keyframes trades against the focal length (docs/history.md).
     fn try_radial_distortion(&mut self, opts: &SlamOptions, timings: &mut StageTimings) -> Result<(), SfmError> {
-        let camera = self.camera()?.clone();
-        if camera.model != CameraModelId::SimplePinhole || self.keyframes.len() < RADIAL_MIN_KEYFRAMES {
+        if !self.radial_pending(opts)? {
             return Ok(());
         }
+        let camera = self.camera()?.clone();
         let ba = opts.global_ba(GlobalBaTolerance::Converged, true);
+        let min_track = self.min_track(opts);
+        let adjust = |rec: &mut Reconstruction| {
+            adjust_global_long_tracks(rec, true, &ba, min_track, MIN_LONG_TRACK_OBSERVATIONS)
+        };
         let mut pinhole = self.rec.clone();
-        let p = timings.time(Stage::GlobalBa, || adjust_global(&mut pinhole, true, &ba))?;
+        let p = timings.time(Stage::GlobalBa, || adjust(&mut pinhole))?;
         let mut radial = self.rec.clone();
         if let Some(c) = radial.camera_mut(self.camera_id) {
             *c = camera.with_radial_term();
         }
-        let r = timings.time(Stage::GlobalBa, || adjust_global(&mut radial, true, &ba))?;
+        let r = timings.time(Stage::GlobalBa, || adjust(&mut radial))?;
         // Residual variance of the pinhole fit: the gain in units of it is
         // chi-square with one degree of freedom when k is truly 0.
         let variance = 2.0 * p.final_cost / p.num_residuals.max(1) as f64;
         let gain = 2.0 * (p.final_cost - r.final_cost) / variance.max(f64::MIN_POSITIVE);
         let refined =
             radial.camera(self.camera_id).map(|c| c.camera.clone()).ok_or(SceneError::UnknownCamera(self.camera_id))?;
+        let undistorted =
+            Camera { model: camera.model, params: refined.params[..camera.params.len()].to_vec(), ..camera };
+        let shift = calibrate::corner_shift(&refined, &undistorted);
         let plausible = plausible_camera(&refined);
-        let keep = plausible && r.num_residuals == p.num_residuals && gain > RADIAL_GAIN_CHI2;
+        let keep =
+            plausible && r.num_residuals == p.num_residuals && gain > RADIAL_GAIN_CHI2 && shift >= MIN_RADIAL_SHIFT_PX;
         tracing::info!(
-            "map {}: radial distortion {}: k {:.4}, focal {:.1} px (pinhole {:.1}), cost gain {gain:.1} (threshold {RADIAL_GAIN_CHI2}){}",
+            "map {}: radial distortion {}: k {:.4}, focal {:.1} px (pinhole {:.1}), cost gain {gain:.1} (threshold {RADIAL_GAIN_CHI2}), corners moved {shift:.2} px (at least {MIN_RADIAL_SHIFT_PX}){}",
             self.index,
             if keep { "estimated" } else { "left out" },
             refined.params.get(3).copied().unwrap_or(0.0),
@@ -618,7 +656,10 @@ impl Mapper {
             pinhole.camera(self.camera_id).map_or(f64::NAN, |c| c.camera.focal_x()),
             if plausible { "" } else { ", implausible parameters" }
         );
+        self.radial_tried = true;
         if !keep {
+            // The pinhole map once more, with its principal point freed.
+            self.global_refine(GlobalBaTolerance::Converged, opts, timings)?;
             return Ok(());
         }
         self.rec = radial;

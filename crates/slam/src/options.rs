@@ -557,7 +557,7 @@ pub struct RefineOptions {
     /// Always on for a camera whose focal length was guessed.
     #[cfg_attr(feature = "cli", arg(long))]
     pub refine_intrinsics: bool,
-    /// Try a radial distortion term (SIMPLE_RADIAL) on a refined one-focal camera at the end.
+    /// Try a radial distortion term (SIMPLE_RADIAL) on a refined guess.
     ///
     /// With refined intrinsics of a one-focal pinhole camera (a guess or an estimate), once the map is made: the term is kept when it fits significantly better (chi-square) and moves the image's corners by at least 2 px; then the final BAs free the principal point with it (`--refine-principal-point`), as COLMAP refines a SIMPLE_RADIAL camera.
     ///

@@ -8,7 +8,12 @@ matching, see `undistort_keypoints_in_database`), sequential matching, then COLM
 OUT/model/ and its camera trajectory (world_from_cam, image name -> timestamp
 through rgb.txt) as OUT/trajectory.tum, plus OUT/peer.json with counts.
 
-    run_pycolmap.py SEQ_DIR OUT_DIR --mapper incremental|global [--threads N]
+    run_pycolmap.py SEQ_DIR OUT_DIR --mapper incremental|global [--threads N] [--uncalibrated]
+
+With --uncalibrated, camera.yaml is not read: COLMAP's own self-calibration
+(one SIMPLE_RADIAL camera from its prior focal length, 1.2 x the larger image
+side, focal length and k refined by every bundle adjustment, the principal
+point held at the centre), the peer of `colslam run` without a camera file.
 
 SEQ_DIR holds rgb.txt ("timestamp rgb/NAME"), the images and camera.yaml
 (flat "key: value" lines: model, width, height, fx, fy, cx, cy and optional
@@ -108,6 +113,7 @@ def main():
     ap.add_argument("--threads", type=int, default=-1)
     ap.add_argument("--skip", type=int, default=1)
     ap.add_argument("--max-frames", type=int, default=0)
+    ap.add_argument("--uncalibrated", action="store_true", help="ignore camera.yaml: COLMAP's self-calibration")
     a = ap.parse_args()
 
     entries = read_rgb_list(os.path.join(a.seq, "rgb.txt"))[:: max(1, a.skip)]
@@ -115,7 +121,12 @@ def main():
         entries = entries[: a.max_frames]
     if not entries:
         sys.exit(f"{a.seq}/rgb.txt lists no images")
-    w, h, model, params = read_camera_yaml(os.path.join(a.seq, "camera.yaml"))
+    if a.uncalibrated:
+        model, params = "SIMPLE_RADIAL", None
+    else:
+        _, _, model, params = read_camera_yaml(os.path.join(a.seq, "camera.yaml"))
+    # A known camera's intrinsics stay fixed, as colslam keeps them.
+    fixed = params is not None
 
     os.makedirs(a.out, exist_ok=True)
     db = os.path.join(a.out, "database.db")
@@ -127,14 +138,15 @@ def main():
     t0 = time.time()
     reader = pycolmap.ImageReaderOptions()
     reader.camera_model = model
-    reader.camera_params = ",".join(repr(p) for p in params)
+    if fixed:
+        reader.camera_params = ",".join(repr(p) for p in params)
     extraction = pycolmap.FeatureExtractionOptions()
     extraction.num_threads = a.threads
     pycolmap.extract_features(
         db, a.seq, image_names=names, camera_mode=pycolmap.CameraMode.SINGLE,
         reader_options=reader, extraction_options=extraction, device=pycolmap.Device.cpu,
     )
-    if model != "PINHOLE":
+    if fixed and model != "PINHOLE":
         undistort_keypoints_in_database(db, model, params)
     t1 = time.time()
     pycolmap.match_sequential(db, device=pycolmap.Device.cpu)
@@ -145,18 +157,17 @@ def main():
     if a.mapper == "incremental":
         opts = pycolmap.IncrementalPipelineOptions()
         opts.num_threads = a.threads
-        # The intrinsics are known: keep them fixed, as colslam does.
-        opts.ba_refine_focal_length = False
+        opts.ba_refine_focal_length = not fixed
         opts.ba_refine_principal_point = False
-        opts.ba_refine_extra_params = False
+        opts.ba_refine_extra_params = not fixed
         recs = pycolmap.incremental_mapping(db, a.seq, sparse, opts)
     else:
         opts = pycolmap.GlobalPipelineOptions()
         opts.num_threads = a.threads
         ba = opts.mapper.bundle_adjustment
-        ba.refine_focal_length = False
+        ba.refine_focal_length = not fixed
         ba.refine_principal_point = False
-        ba.refine_extra_params = False
+        ba.refine_extra_params = not fixed
         recs = pycolmap.global_mapping(db, a.seq, sparse, opts)
     t3 = time.time()
     if not recs:
@@ -187,6 +198,7 @@ def main():
     points = rec.num_points3D()
     regs = rec.num_reg_images()
     obs = sum(len(p.track.elements) for p in rec.points3D.values())
+    camera = rec.cameras[next(iter(rec.images.values())).camera_id]
     report = {
         "system": f"pycolmap {pycolmap.__version__} {a.mapper}",
         "frames": len(entries),
@@ -198,6 +210,7 @@ def main():
         "points_per_image": obs / regs if regs else 0.0,
         "models": len(recs),
         "timings_s": {"extraction": t1 - t0, "matching": t2 - t1, "mapping": t3 - t2},
+        "camera": {"model": camera.model.name, "params": [float(p) for p in camera.params]},
     }
     with open(os.path.join(a.out, "peer.json.tmp"), "w") as f:
         json.dump(report, f, indent=2)

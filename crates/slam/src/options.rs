@@ -559,7 +559,7 @@ pub struct RefineOptions {
     pub refine_intrinsics: bool,
     /// Try a radial distortion term (SIMPLE_RADIAL) on a refined guess.
     ///
-    /// With refined intrinsics of a one-focal pinhole camera (a guess or an estimate), once the map is made: the term is kept when it fits significantly better (chi-square) and moves the image's corners by at least 2 px; then the final BAs free the principal point with it (`--refine-principal-point`), as COLMAP refines a SIMPLE_RADIAL camera.
+    /// With refined intrinsics of a one-focal pinhole camera (a guess or an estimate), once the map is made: the term is kept when it fits significantly better (chi-square) and moves the image's corners by at least 2 px; then the final BAs free the principal point with it (`--refine-principal-point`), as COLMAP refines a SIMPLE_RADIAL camera, and a term that shrinks under 2 px there (it stood in for the principal point's offset) is dropped.
     ///
     /// On by default: the synthetic room's barrel lens ends within 0.2 % of its focal length (9 % long without), KITTI odometry's rectified images ask for a term and end 25 % more accurate with their focal length within 2 %; undistorted photos (Strecha) keep the pinhole. On TUM fr1 (a strongly distorted lens and a rolling shutter) the trajectory is more accurate but the focal length ends 3-6 % long (docs/benchmarks.md).
     #[cfg_attr(feature = "cli", arg(long, value_name = "BOOL", default_value_t = RefineOptions::default().estimate_distortion, action = clap::ArgAction::Set))]

@@ -512,17 +512,24 @@ fn undistorted_photos_without_calibration_keep_a_pinhole_camera() {
     // herzjesu (chi-square 108 with `colslam run`), but it moves the
     // image's corners by under a pixel (k -0.0023, 0.96 px) and kept it
     // costs the trajectory 7 %: the term needs `MIN_RADIAL_SHIFT_PX` too.
-    let Some((dir, calibrated, frames)) = dataset_frames("strecha_herzjesu_P25") else { return };
-    let r = one_map_from_the_guess("herzjesu", &frames, 0, 25);
-    let camera = r.maps[0].map.camera().expect("camera");
-    assert_eq!(camera.model, colslam_camera::CameraModelId::SimplePinhole, "params {:?}", camera.params);
-    let focal = camera.focal_x();
-    assert!((focal / calibrated.focal_x() - 1.0).abs() < 0.01, "focal length {focal:.1} px");
-    let gt = Trajectory::read_tum(&dir.join("groundtruth.txt")).expect("ground truth");
-    let ate = evaluate(&gt, &est_trajectory(&r), &EvalOptions::default()).expect("evaluate");
-    // 0.90 cm here (this pipeline does not refine the observations;
-    // `colslam run` 0.64 cm, calibrated 0.64 cm).
-    assert!(ate.ate_rmse < 0.011, "ATE {} m", ate.ate_rmse);
+    // Castle's seed 1 asks for k -0.009 (3.8 px) with the principal point
+    // held at the centre, and for -0.001 once it is refined: the term stood
+    // in for the principal point's offset and is dropped (kept, castle's
+    // trajectory was 5 % worse).
+    for (name, seed, max_ate) in [("strecha_herzjesu_P25", 0, 0.011), ("strecha_castle_P19", 1, 0.045)] {
+        let Some((dir, calibrated, frames)) = dataset_frames(name) else { return };
+        let r = one_map_from_the_guess(name, &frames, seed, frames.len());
+        let camera = r.maps[0].map.camera().expect("camera");
+        assert_eq!(camera.model, colslam_camera::CameraModelId::SimplePinhole, "{name}: params {:?}", camera.params);
+        let focal = camera.focal_x();
+        assert!((focal / calibrated.focal_x() - 1.0).abs() < 0.01, "{name}: focal length {focal:.1} px");
+        let gt = Trajectory::read_tum(&dir.join("groundtruth.txt")).expect("ground truth");
+        let ate = evaluate(&gt, &est_trajectory(&r), &EvalOptions::default()).expect("evaluate");
+        eprintln!("{name} without calibration: ATE {} m", ate.ate_rmse);
+        // herzjesu 0.90 cm here (this pipeline does not refine the
+        // observations; `colslam run` 0.64 cm, calibrated 0.64 cm).
+        assert!(ate.ate_rmse < max_ate, "{name}: ATE {} m", ate.ate_rmse);
+    }
 }
 
 #[test]

@@ -145,6 +145,13 @@ pub(super) fn final_ba_loss(loss: colslam_optim::LossFunction, scale: f64) -> co
     }
 }
 
+/// How far `radial`'s distortion terms move the image's corners from where
+/// its `pinhole` model (the leading parameters) puts them, pixels.
+fn radial_corner_shift(radial: &Camera, pinhole: CameraModelId) -> f64 {
+    let params = radial.params.iter().take(pinhole.num_params()).copied().collect();
+    calibrate::corner_shift(radial, &Camera { model: pinhole, params, ..radial.clone() })
+}
+
 /// Keyframes a map needs before a radial distortion term is tried on its
 /// camera ([`Mapper::try_radial_distortion`]): fewer keep too few
 /// observations near the image borders, where distortion shows.
@@ -615,7 +622,8 @@ impl Mapper {
     /// gain is significant ([`RADIAL_GAIN_CHI2`]), it moves the image's
     /// corners by at least [`MIN_RADIAL_SHIFT_PX`] and its parameters are
     /// plausible (COLMAP's bogus-camera check). Then the final refinements
-    /// free the principal point, with the term if kept. Only now: the map
+    /// free the principal point, with the term if kept, and drop a term
+    /// that shrinks under [`MIN_RADIAL_SHIFT_PX`] there. Only now: the map
     /// made with the focal length alone carries k, while k freed from the
     /// first keyframes trades against the focal length (docs/history.md).
     fn try_radial_distortion(&mut self, opts: &SlamOptions, timings: &mut StageTimings) -> Result<(), SfmError> {
@@ -641,9 +649,7 @@ impl Mapper {
         let gain = 2.0 * (p.final_cost - r.final_cost) / variance.max(f64::MIN_POSITIVE);
         let refined =
             radial.camera(self.camera_id).map(|c| c.camera.clone()).ok_or(SceneError::UnknownCamera(self.camera_id))?;
-        let undistorted =
-            Camera { model: camera.model, params: refined.params[..camera.params.len()].to_vec(), ..camera };
-        let shift = calibrate::corner_shift(&refined, &undistorted);
+        let shift = radial_corner_shift(&refined, camera.model);
         let plausible = plausible_camera(&refined);
         let keep =
             plausible && r.num_residuals == p.num_residuals && gain > RADIAL_GAIN_CHI2 && shift >= MIN_RADIAL_SHIFT_PX;
@@ -662,11 +668,23 @@ impl Mapper {
             self.global_refine(GlobalBaTolerance::Converged, opts, timings)?;
             return Ok(());
         }
-        self.rec = radial;
+        let unrefined = std::mem::replace(&mut self.rec, radial);
         self.intrinsics_refined(opts);
         // The tracks the pinhole map filtered near the borders come back,
         // and the radial camera is refined with them.
         for _ in 0..RADIAL_REFINEMENTS {
+            self.global_refine(GlobalBaTolerance::Converged, opts, timings)?;
+        }
+        // With the principal point free a term that stood in for its offset
+        // from the centre shrinks (Strecha castle's photos: k -0.009 at the
+        // trial, -0.001 after); then the pinhole map goes on without it.
+        let refined_shift = radial_corner_shift(self.camera()?, camera.model);
+        if refined_shift < MIN_RADIAL_SHIFT_PX {
+            tracing::info!(
+                "map {}: radial distortion dropped: with the principal point refined it moves the corners {refined_shift:.2} px",
+                self.index
+            );
+            self.rec = unrefined;
             self.global_refine(GlobalBaTolerance::Converged, opts, timings)?;
         }
         Ok(())

@@ -68,19 +68,18 @@ pub fn centred_camera(w: u32, h: u32, f: f64) -> Camera {
     Camera::simple_pinhole(w as u64, h as u64, f, (w as f64 - 1.0) / 2.0, (h as f64 - 1.0) / 2.0)
 }
 
-/// How far `distorted` puts the image's corners from where `undistorted`
-/// puts them, pixels (the larger over the four corners): the rays through
-/// the corners under `undistorted`'s pinhole part, projected by both. With
-/// the same pinhole part, the effect of `distorted`'s extra terms at the
-/// image border, where it is largest for a radial lens.
-pub fn corner_shift(distorted: &Camera, undistorted: &Camera) -> f64 {
-    let (w, h) = (undistorted.width as f64, undistorted.height as f64);
-    let (f, c) = (Vec2::new(undistorted.focal_x(), undistorted.focal_y()), undistorted.principal_point());
+/// How far `camera`'s distortion terms move the image's corners, pixels
+/// (the larger over the four corners): the ray its pinhole part (focal
+/// lengths and principal point) puts through each corner, projected with
+/// the distortion. Largest at the image border for a radial lens.
+pub fn corner_shift(camera: &Camera) -> f64 {
+    let (w, h) = (camera.width as f64, camera.height as f64);
+    let (f, c) = (Vec2::new(camera.focal_x(), camera.focal_y()), camera.principal_point());
     [(0.0, 0.0), (w, 0.0), (0.0, h), (w, h)]
         .into_iter()
         .map(|(x, y)| {
             let ray = Vec2::new((x - c.x) / f.x, (y - c.y) / f.y);
-            (distorted.img_from_normalized(&ray) - undistorted.img_from_normalized(&ray)).norm()
+            (camera.img_from_normalized(&ray) - Vec2::new(x, y)).norm()
         })
         .fold(0.0, f64::max)
 }
@@ -378,9 +377,9 @@ mod tests {
         let radial = Camera { params: vec![500.0, 300.0, 240.0, 0.02], ..pinhole.with_radial_term() };
         let r = (340.0_f64.powi(2) + 240.0_f64.powi(2)).sqrt() / 500.0;
         let expected = 0.02 * r.powi(3) * 500.0;
-        let shift = corner_shift(&radial, &pinhole);
+        let shift = corner_shift(&radial);
         assert!((shift - expected).abs() < 1e-9, "shift {shift} px, expected {expected}");
-        assert_eq!(corner_shift(&pinhole, &pinhole), 0.0);
+        assert_eq!(corner_shift(&pinhole), 0.0);
     }
 
     #[test]

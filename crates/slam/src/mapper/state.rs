@@ -145,13 +145,6 @@ pub(super) fn final_ba_loss(loss: colslam_optim::LossFunction, scale: f64) -> co
     }
 }
 
-/// How far `radial`'s distortion terms move the image's corners from where
-/// its `pinhole` model (the leading parameters) puts them, pixels.
-fn radial_corner_shift(radial: &Camera, pinhole: CameraModelId) -> f64 {
-    let params = radial.params.iter().take(pinhole.num_params()).copied().collect();
-    calibrate::corner_shift(radial, &Camera { model: pinhole, params, ..radial.clone() })
-}
-
 /// Keyframes a map needs before a radial distortion term is tried on its
 /// camera ([`Mapper::try_radial_distortion`]): fewer keep too few
 /// observations near the image borders, where distortion shows.
@@ -649,7 +642,7 @@ impl Mapper {
         let gain = 2.0 * (p.final_cost - r.final_cost) / variance.max(f64::MIN_POSITIVE);
         let refined =
             radial.camera(self.camera_id).map(|c| c.camera.clone()).ok_or(SceneError::UnknownCamera(self.camera_id))?;
-        let shift = radial_corner_shift(&refined, camera.model);
+        let shift = calibrate::corner_shift(&refined);
         let plausible = plausible_camera(&refined);
         let keep =
             plausible && r.num_residuals == p.num_residuals && gain > RADIAL_GAIN_CHI2 && shift >= MIN_RADIAL_SHIFT_PX;
@@ -678,7 +671,7 @@ impl Mapper {
         // With the principal point free a term that stood in for its offset
         // from the centre shrinks (Strecha castle's photos: k -0.009 at the
         // trial, -0.001 after); then the pinhole map goes on without it.
-        let refined_shift = radial_corner_shift(self.camera()?, camera.model);
+        let refined_shift = calibrate::corner_shift(self.camera()?);
         if refined_shift < MIN_RADIAL_SHIFT_PX {
             tracing::info!(
                 "map {}: radial distortion dropped: with the principal point refined it moves the corners {refined_shift:.2} px",

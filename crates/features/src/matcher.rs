@@ -144,10 +144,40 @@ fn offer_rev(r: &mut u64, d: u32, qi: usize) {
     }
 }
 
-/// Forward nearest neighbours of the queries `q` (global indices from
-/// `first`) and, in `rev`, every train row's nearest query so far.
+/// Offers query `qi` at distance `d` as one of the two nearest queries of a
+/// train row (`r1` the nearest, `r2` the second, packed).
 #[inline(always)]
-fn brute_force_block(q: &[[u64; 4]], first: usize, train: &[[u64; 4]], best: &mut [Best], rev: &mut [u64]) {
+fn offer_rev2(r1: &mut u64, r2: &mut u64, d: u32, qi: usize) {
+    if (d as u64) <= (*r2 >> 32) {
+        let v = pack(d, qi);
+        let hi = (*r1).max(v);
+        *r1 = (*r1).min(v);
+        *r2 = (*r2).min(hi);
+    }
+}
+
+/// Forward nearest neighbours of the queries `q` (global indices from
+/// `first`) and, in `rev`, every train row's nearest query so far; with
+/// `TWO`, also its second nearest in `rev2` (else `rev2` is unused).
+#[inline(always)]
+fn brute_force_block<const TWO: bool>(
+    q: &[[u64; 4]],
+    first: usize,
+    train: &[[u64; 4]],
+    best: &mut [Best],
+    rev: &mut [u64],
+    rev2: &mut [u64],
+) {
+    if TWO {
+        for (k, (qd, b)) in q.iter().zip(best.iter_mut()).enumerate() {
+            for (j, ((t, r1), r2)) in train.iter().zip(rev.iter_mut()).zip(rev2.iter_mut()).enumerate() {
+                let d = hamming_distance(qd, t);
+                b.push(d, j);
+                offer_rev2(r1, r2, d, first + k);
+            }
+        }
+        return;
+    }
     let mut base = first;
     for (qb, bb) in q.chunks(QUERY_BLOCK).zip(best.chunks_mut(QUERY_BLOCK)) {
         if let ([q0, q1, q2, q3], [b0, b1, b2, b3]) = (qb, &mut *bb) {
@@ -209,10 +239,18 @@ const LANES: usize = 8;
 /// (VPOPCNTQ) or AVX2 (LLVM's shuffle-based vector popcount) by the
 /// wrappers below.
 #[inline(always)]
-fn soa_kernel(q: &[[u64; 4]], first: usize, t: &TrainSoa, best: &mut [Best], rev: &mut [u64]) {
+fn soa_kernel<const TWO: bool>(
+    q: &[[u64; 4]],
+    first: usize,
+    t: &TrainSoa,
+    best: &mut [Best],
+    rev: &mut [u64],
+    rev2: &mut [u64],
+) {
     let n = t.w[0].len();
     let [w0, w1, w2, w3] = [&t.w[0][..n], &t.w[1][..n], &t.w[2][..n], &t.w[3][..n]];
     let rev = &mut rev[..n];
+    let rev2 = if TWO { &mut rev2[..n] } else { &mut rev2[..0] };
     let mut keys = vec![0u64; n];
     for (k, (qd, b)) in q.iter().zip(best.iter_mut()).enumerate() {
         let qi = (first + k) as u64;
@@ -223,8 +261,17 @@ fn soa_kernel(q: &[[u64; 4]], first: usize, t: &TrainSoa, best: &mut [Best], rev
                 + (qd[3] ^ w3[j]).count_ones();
             keys[j] = ((d as u64) << 32) | j as u64;
         }
-        for (r, &key) in rev.iter_mut().zip(&keys) {
-            *r = (*r).min((key & !0xffff_ffff) | qi);
+        if TWO {
+            for ((r1, r2), &key) in rev.iter_mut().zip(rev2.iter_mut()).zip(&keys) {
+                let v = (key & !0xffff_ffff) | qi;
+                let hi = (*r1).max(v);
+                *r1 = (*r1).min(v);
+                *r2 = (*r2).min(hi);
+            }
+        } else {
+            for (r, &key) in rev.iter_mut().zip(&keys) {
+                *r = (*r).min((key & !0xffff_ffff) | qi);
+            }
         }
         let mut m1 = [NONE; LANES];
         let mut m2 = [NONE; LANES];
@@ -251,22 +298,28 @@ fn soa_kernel(q: &[[u64; 4]], first: usize, t: &TrainSoa, best: &mut [Best], rev
     }
 }
 
+/// The arguments every kernel takes: queries, the first query's global
+/// index, the train set (as rows and as structure of arrays), the queries'
+/// best train rows, and the train rows' nearest (and, with `TWO`, second
+/// nearest) queries.
+type KernelArgs<'a> = (&'a [[u64; 4]], usize, &'a [[u64; 4]], &'a TrainSoa, &'a mut [Best], &'a mut [u64], &'a mut [u64]);
+
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx512f,avx512bw,avx512vl,avx512vpopcntdq,popcnt")]
-fn soa_kernel_avx512(q: &[[u64; 4]], first: usize, t: &TrainSoa, best: &mut [Best], rev: &mut [u64]) {
-    soa_kernel(q, first, t, best, rev)
+fn soa_kernel_avx512<const TWO: bool>((q, first, _, t, best, rev, rev2): KernelArgs<'_>) {
+    soa_kernel::<TWO>(q, first, t, best, rev, rev2)
 }
 
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2,popcnt")]
-fn soa_kernel_avx2(q: &[[u64; 4]], first: usize, t: &TrainSoa, best: &mut [Best], rev: &mut [u64]) {
-    soa_kernel(q, first, t, best, rev)
+fn soa_kernel_avx2<const TWO: bool>((q, first, _, t, best, rev, rev2): KernelArgs<'_>) {
+    soa_kernel::<TWO>(q, first, t, best, rev, rev2)
 }
 
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "popcnt")]
-fn brute_force_block_popcnt(q: &[[u64; 4]], first: usize, train: &[[u64; 4]], best: &mut [Best], rev: &mut [u64]) {
-    brute_force_block(q, first, train, best, rev)
+fn brute_force_block_popcnt<const TWO: bool>((q, first, train, _, best, rev, rev2): KernelArgs<'_>) {
+    brute_force_block::<TWO>(q, first, train, best, rev, rev2)
 }
 
 /// Which build of the brute-force kernel runs.
@@ -317,30 +370,65 @@ impl Kernel {
         v
     }
 
-    fn run(self, q: &[[u64; 4]], first: usize, train: &[[u64; 4]], soa: &TrainSoa, best: &mut [Best], rev: &mut [u64]) {
+    fn run<const TWO: bool>(self, args: KernelArgs<'_>) {
         match self {
             #[cfg(target_arch = "x86_64")]
             // SAFETY: `Kernel::detect` (or `available`) chose this variant
             // only after checking at run time that the CPU has every feature
             // the function is compiled for, the only requirement of a
             // `target_feature` function.
-            Kernel::Avx512 => unsafe { soa_kernel_avx512(q, first, soa, best, rev) },
+            Kernel::Avx512 => unsafe { soa_kernel_avx512::<TWO>(args) },
             #[cfg(target_arch = "x86_64")]
             // SAFETY: as above, AVX2 and POPCNT were detected.
-            Kernel::Avx2 => unsafe { soa_kernel_avx2(q, first, soa, best, rev) },
+            Kernel::Avx2 => unsafe { soa_kernel_avx2::<TWO>(args) },
             #[cfg(target_arch = "x86_64")]
             // SAFETY: as above, POPCNT was detected.
-            Kernel::Popcnt => unsafe { brute_force_block_popcnt(q, first, train, best, rev) },
-            _ => brute_force_block(q, first, train, best, rev),
+            Kernel::Popcnt => unsafe { brute_force_block_popcnt::<TWO>(args) },
+            _ => {
+                let (q, first, train, _, best, rev, rev2) = args;
+                brute_force_block::<TWO>(q, first, train, best, rev, rev2)
+            }
         }
     }
 }
 
+/// The nearest (and, with `TWO`, second nearest) query of every train row,
+/// packed; `second` is empty without `TWO`.
+struct Reverse {
+    first: Vec<u64>,
+    second: Vec<u64>,
+}
+
+impl Reverse {
+    fn empty<const TWO: bool>(n: usize) -> Self {
+        Self { first: vec![NONE; n], second: if TWO { vec![NONE; n] } else { Vec::new() } }
+    }
+
+    /// The two nearest of both: every packed value is distinct (the query
+    /// index is part of it), so the second is the smaller of the larger
+    /// first and the smaller second.
+    fn merge(mut self, other: Reverse) -> Self {
+        if self.second.is_empty() {
+            for (x, y) in self.first.iter_mut().zip(other.first) {
+                *x = (*x).min(y);
+            }
+        } else {
+            for ((x1, x2), (y1, y2)) in self.first.iter_mut().zip(self.second.iter_mut()).zip(other.first.into_iter().zip(other.second)) {
+                let hi = (*x1).max(y1);
+                *x1 = (*x1).min(y1);
+                *x2 = (*x2).min(y2).min(hi);
+            }
+        }
+        self
+    }
+}
+
 /// For each query its best/second-best train and, for each train, the best
-/// query (packed). Parallel over blocks of queries; the reverse minima are
-/// merged with `min` on packed values, which is associative and commutative,
-/// so the result does not depend on the thread count.
-fn nn_binary(query: &[[u64; 4]], train: &[[u64; 4]], kernel: Kernel) -> (Vec<Best>, Vec<u64>) {
+/// query (packed; with `TWO` also the second best). Parallel over blocks of
+/// queries; the reverse minima are merged with `min` on packed values,
+/// which is associative and commutative, so the result does not depend on
+/// the thread count.
+fn nn_binary<const TWO: bool>(query: &[[u64; 4]], train: &[[u64; 4]], kernel: Kernel) -> (Vec<Best>, Reverse) {
     let mut best = vec![Best::EMPTY; query.len()];
     let soa = match kernel {
         Kernel::Avx512 | Kernel::Avx2 => TrainSoa::new(train),
@@ -351,21 +439,13 @@ fn nn_binary(query: &[[u64; 4]], train: &[[u64; 4]], kernel: Kernel) -> (Vec<Bes
         .zip(best.par_chunks_mut(QUERIES_PER_TASK))
         .enumerate()
         .fold(
-            || vec![NONE; train.len()],
+            || Reverse::empty::<TWO>(train.len()),
             |mut rev, (chunk, (q, b))| {
-                kernel.run(q, chunk * QUERIES_PER_TASK, train, &soa, b, &mut rev);
+                kernel.run::<TWO>((q, chunk * QUERIES_PER_TASK, train, &soa, b, &mut rev.first, &mut rev.second));
                 rev
             },
         )
-        .reduce(
-            || vec![NONE; train.len()],
-            |mut a, b| {
-                for (x, y) in a.iter_mut().zip(b) {
-                    *x = (*x).min(y);
-                }
-                a
-            },
-        );
+        .reduce(|| Reverse::empty::<TWO>(train.len()), Reverse::merge);
     (best, rev)
 }
 
@@ -407,7 +487,42 @@ impl NnMatcher {
         if query.is_empty() || train.is_empty() {
             return Vec::new();
         }
-        let (best, rev) = nn_binary(query, train, kernel);
+        let (best, rev) = nn_binary::<false>(query, train, kernel);
+        self.filter(&best, |j| rev.first.get(j).map(|r| (r & 0xffff_ffff) as usize))
+    }
+
+    /// Brute-force matching both ways in one pass: the matches of `a`
+    /// against `b` and those of `b` against `a`, exactly as two calls of
+    /// [`NnMatcher::match_binary`] give them. The pass also keeps each `b`
+    /// row's second nearest `a` row (for its ratio test); the cross-check of
+    /// either direction is the other's nearest neighbour, which the pass has.
+    pub fn match_binary_both(&self, a: &[[u64; 4]], b: &[[u64; 4]]) -> (Vec<Match>, Vec<Match>) {
+        self.match_binary_both_with(a, b, Kernel::detect())
+    }
+
+    fn match_binary_both_with(&self, a: &[[u64; 4]], b: &[[u64; 4]], kernel: Kernel) -> (Vec<Match>, Vec<Match>) {
+        if a.is_empty() || b.is_empty() {
+            return (Vec::new(), Vec::new());
+        }
+        let (forward, rev) = nn_binary::<true>(a, b, kernel);
+        let backward: Vec<Best> = rev
+            .first
+            .iter()
+            .zip(&rev.second)
+            .map(|(&r1, &r2)| Best {
+                d1: (r1 >> 32) as u32,
+                i1: (r1 & 0xffff_ffff) as u32,
+                d2: if r2 == NONE { u32::MAX } else { (r2 >> 32) as u32 },
+            })
+            .collect();
+        let ab = self.filter(&forward, |j| backward.get(j).map(|r| r.i1 as usize));
+        let ba = self.filter(&backward, |i| forward.get(i).map(|r| r.i1 as usize));
+        (ab, ba)
+    }
+
+    /// The matches kept of each query's best and second-best train rows;
+    /// `nearest(j)` is train row `j`'s nearest query (for the cross-check).
+    fn filter(&self, best: &[Best], nearest: impl Fn(usize) -> Option<usize>) -> Vec<Match> {
         best.iter()
             .enumerate()
             .filter_map(|(i, b)| {
@@ -420,7 +535,7 @@ impl NnMatcher {
                 if d1 > self.opts.max_hamming || !self.ratio_ok(d1 as f32, d2) {
                     return None;
                 }
-                if self.opts.cross_check && rev.get(j).map(|r| (r & 0xffff_ffff) as usize) != Some(i) {
+                if self.opts.cross_check && nearest(j) != Some(i) {
                     return None;
                 }
                 Some(Match { query: i as u32, train: j as u32, distance: d1 as f32 })
@@ -569,6 +684,17 @@ impl Matcher for NnMatcher {
                 self.match_float(*da, q, t)
             }
             _ => Err(FeatureError::DescriptorMismatch("cannot match binary against float descriptors".into())),
+        }
+    }
+
+    fn match_features_both(&self, a: &Features, b: &Features) -> Result<(Vec<Match>, Vec<Match>), FeatureError> {
+        match (&a.descriptors, &b.descriptors) {
+            (Descriptors::Binary(q), Descriptors::Binary(t)) => {
+                a.validate()?;
+                b.validate()?;
+                Ok(self.match_binary_both(q, t))
+            }
+            _ => Ok((self.match_features(a, b)?, self.match_features(b, a)?)),
         }
     }
 }
@@ -758,6 +884,34 @@ mod tests {
                         assert_eq!(got, want, "{o:?} {kernel:?}");
                         let got = m.match_binary_with(&query, &train[..147], kernel);
                         assert_eq!(got, naive_match(&query, &train[..147], &o), "{o:?} {kernel:?}");
+                    }
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn both_ways_in_one_pass_equal_two_calls() {
+        let mut s = 7;
+        // Few bits set, so distances tie often and the ratio test and the
+        // lowest-index rule both matter.
+        let sparse = |s: &mut u64| {
+            let (a, b) = (rng_desc(s), rng_desc(s));
+            std::array::from_fn::<u64, 4, _>(|k| a[k] & b[k] & 0x0f0f_0f0f_0f0f_0f0f)
+        };
+        let a: Vec<[u64; 4]> = (0..203).map(|_| sparse(&mut s)).collect();
+        let b: Vec<[u64; 4]> = (0..150).map(|i| if i % 2 == 0 { a[(i * 3) % 203] } else { sparse(&mut s) }).collect();
+        for cross_check in [false, true] {
+            for max_ratio in [1.0, 0.8] {
+                for max_hamming in [256, 20] {
+                    let o = NnMatcherOptions { cross_check, max_ratio, max_hamming, ..Default::default() };
+                    let m = NnMatcher::new(o.clone()).unwrap();
+                    for kernel in Kernel::available() {
+                        for (x, y) in [(&a[..], &b[..]), (&b[..], &a[..]), (&a[..], &b[..147])] {
+                            let want = (m.match_binary_with(x, y, kernel), m.match_binary_with(y, x, kernel));
+                            assert!(!want.0.is_empty() && !want.1.is_empty());
+                            assert_eq!(m.match_binary_both_with(x, y, kernel), want, "{o:?} {kernel:?}");
+                        }
                     }
                 }
             }

@@ -132,4 +132,10 @@ pub trait Matcher: Send + Sync {
     /// Matches `a` (query) against `b` (train). The result is sorted by query
     /// index, and each query appears at most once.
     fn match_features(&self, a: &Features, b: &Features) -> Result<Vec<Match>, FeatureError>;
+    /// The matches of `a` against `b` and of `b` against `a`, as two calls
+    /// of [`Matcher::match_features`] give them; a matcher that finds both in
+    /// one pass overrides it.
+    fn match_features_both(&self, a: &Features, b: &Features) -> Result<(Vec<Match>, Vec<Match>), FeatureError> {
+        Ok((self.match_features(a, b)?, self.match_features(b, a)?))
+    }
 }

@@ -37,6 +37,11 @@ pub struct Frontend {
 /// frame index.
 type PairKey = (usize, usize, usize, usize);
 
+/// The memo's key of `query` matched against `train`.
+fn pair_key(query: &FrameData, train: &FrameData) -> PairKey {
+    (query.index(), query.features.keypoints.len(), train.index(), train.features.keypoints.len())
+}
+
 /// Matches by frame pair, up to [`MATCH_MEMO_BYTES`].
 #[derive(Default)]
 struct MatchMemo {
@@ -139,21 +144,42 @@ impl Frontend {
         if query.is_empty() || train.is_empty() {
             return Ok(Vec::new());
         }
-        let key = (query.index(), query.features.keypoints.len(), train.index(), train.features.keypoints.len());
+        let key = pair_key(query, train);
         if let Some(kept) = self.with_memo(|memo| memo.pairs.get(&key).cloned()).flatten() {
             return Ok(kept);
         }
-
         let matches = self.matcher.match_features(&query.features, &train.features)?;
+        self.remember(key, &matches);
+        Ok(matches)
+    }
+
+    /// [`Frontend::match_frames`] of `query` against `train`, which also
+    /// keeps the matches of `train` against `query` while matches are kept:
+    /// the matcher finds both in one pass, and the pipeline matches the
+    /// first frames' pairs older frame first, then registers each newer
+    /// frame against the older keyframes.
+    pub fn match_frames_both_ways(&self, query: &FrameData, train: &FrameData) -> Result<Vec<Match>, SlamError> {
+        let (key, back) = (pair_key(query, train), pair_key(train, query));
+        let kept = self.with_memo(|memo| (memo.pairs.contains_key(&key), memo.pairs.contains_key(&back)));
+        if query.is_empty() || train.is_empty() || kept != Some((false, false)) {
+            return self.match_frames(query, train);
+        }
+        let (matches, reverse) = self.matcher.match_features_both(&query.features, &train.features)?;
+        self.remember(key, &matches);
+        self.remember(back, &reverse);
+        Ok(matches)
+    }
+
+    /// Keeps a pair's matches, while matches are kept.
+    fn remember(&self, key: PairKey, matches: &[Match]) {
         self.with_memo(|memo| {
-            let bytes = matches.len() * std::mem::size_of::<Match>();
+            let bytes = std::mem::size_of_val(matches);
             if memo.bytes + bytes > MATCH_MEMO_BYTES {
                 *memo = MatchMemo::default();
             }
             memo.bytes += bytes;
-            memo.pairs.insert(key, matches.clone());
+            memo.pairs.insert(key, matches.to_vec());
         });
-        Ok(matches)
     }
 
     /// Keeps the matches of every frame pair from now on, until
@@ -299,5 +325,22 @@ mod tests {
         assert_eq!(kept(&frontend), None);
         assert_eq!(frontend.match_frames(&a, &b).expect("match"), fresh);
         assert_eq!(kept(&frontend), None, "forgotten matches are not kept again");
+    }
+
+    #[test]
+    fn a_pair_matched_both_ways_keeps_what_each_direction_gives() {
+        let (frontend, a, b) = two_frames();
+        let (ab, ba) = (frontend.match_frames(&a, &b).expect("match"), frontend.match_frames(&b, &a).expect("match"));
+        assert_ne!(ab, ba, "the directions differ (ratio test on each side)");
+        // Without kept matches nothing else is computed or kept.
+        assert_eq!(frontend.match_frames_both_ways(&a, &b).expect("match"), ab);
+        assert_eq!(kept(&frontend), None);
+        frontend.keep_matches();
+        assert_eq!(frontend.match_frames_both_ways(&a, &b).expect("match"), ab);
+        assert_eq!(kept(&frontend), Some(2), "both directions kept");
+        assert_eq!(frontend.with_memo(|m| m.pairs.get(&pair_key(&b, &a)).cloned()).flatten(), Some(ba.clone()));
+        assert_eq!(frontend.match_frames(&b, &a).expect("match"), ba);
+        assert_eq!(frontend.match_frames_both_ways(&b, &a).expect("match"), ba);
+        assert_eq!(kept(&frontend), Some(2));
     }
 }

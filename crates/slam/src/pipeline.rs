@@ -795,7 +795,7 @@ impl Slam {
         let frontend = &self.frontend;
         type Matched = ((usize, usize), Vec<Match>);
         let matched: Result<Vec<Matched>, SlamError> = self.timings.time(Stage::Matching, || {
-            pairs.par_iter().map(|&(i, j)| Ok(((i, j), frontend.match_frames(&window[i], &window[j])?))).collect()
+            pairs.par_iter().map(|&(i, j)| Ok(((i, j), frontend.match_frames_both_ways(&window[i], &window[j])?))).collect()
         });
         Ok(matched?.into_iter().collect())
     }
@@ -1201,8 +1201,6 @@ impl Slam {
                 self.try_initialize(true)?;
             }
         }
-        // Mapping ended: the pairs matched from here on are new.
-        self.frontend.forget_matches();
         match std::mem::replace(&mut self.state, State::Initializing { window: Vec::new() }) {
             State::Initializing { window } => self.add_orphans(window),
             State::Tracking(t) => self.finished.push(t.map),
@@ -1233,6 +1231,10 @@ impl Slam {
             done.map.release_records();
             maps.push(done);
         }
+        // The matches stay kept until here: a photo set's images that are no
+        // keyframe are localised against keyframes they were matched with in
+        // the first window.
+        self.frontend.forget_matches();
         // Largest first; ties by earlier map.
         maps.sort_by(|a, b| b.poses.len().cmp(&a.poses.len()).then(a.map.index().cmp(&b.map.index())));
         let localized: HashSet<usize> = maps.iter().flat_map(|m| m.poses.iter().map(|p| p.frame.index)).collect();

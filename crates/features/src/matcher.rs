@@ -302,7 +302,8 @@ fn soa_kernel<const TWO: bool>(
 /// index, the train set (as rows and as structure of arrays), the queries'
 /// best train rows, and the train rows' nearest (and, with `TWO`, second
 /// nearest) queries.
-type KernelArgs<'a> = (&'a [[u64; 4]], usize, &'a [[u64; 4]], &'a TrainSoa, &'a mut [Best], &'a mut [u64], &'a mut [u64]);
+type KernelArgs<'a> =
+    (&'a [[u64; 4]], usize, &'a [[u64; 4]], &'a TrainSoa, &'a mut [Best], &'a mut [u64], &'a mut [u64]);
 
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx512f,avx512bw,avx512vl,avx512vpopcntdq,popcnt")]
@@ -413,7 +414,9 @@ impl Reverse {
                 *x = (*x).min(y);
             }
         } else {
-            for ((x1, x2), (y1, y2)) in self.first.iter_mut().zip(self.second.iter_mut()).zip(other.first.into_iter().zip(other.second)) {
+            for ((x1, x2), (y1, y2)) in
+                self.first.iter_mut().zip(self.second.iter_mut()).zip(other.first.into_iter().zip(other.second))
+            {
                 let hi = (*x1).max(y1);
                 *x1 = (*x1).min(y1);
                 *x2 = (*x2).min(y2).min(hi);

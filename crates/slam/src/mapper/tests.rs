@@ -14,7 +14,7 @@ use crate::options::{FrontendOptions, GlobalBaTolerance, SlamOptions};
 use crate::timing::StageTimings;
 use colslam_camera::{Camera, PixelConvention};
 use colslam_estimators::TwoViewConfig;
-use colslam_features::{Descriptors, Features, Keypoint, Match};
+use colslam_features::{Descriptors, Features, Keypoint, Match, flow_score};
 use colslam_geometry::{Quat, Rigid3, Sim3, SplitMix64, Vec2, Vec3, umeyama};
 use colslam_scene::{Image, ImageId, Point3DId, TrackElement};
 use std::collections::{BTreeMap, BTreeSet, HashMap};
@@ -410,6 +410,28 @@ fn frontend_matches_are_the_true_correspondences() {
     assert_eq!(pairs(&m), pairs(&scene.matches(0, 4)));
     assert_eq!(m.len(), scene.seen_by(&[0, 4], 2).len());
     assert!(m.iter().any(|m| m.query != m.train), "keypoint orders differ between frames");
+}
+
+#[test]
+fn the_flow_predicted_through_shared_points_is_the_matched_flow() {
+    let scene = Scene::translating(10);
+    let frontend = scene.frontend();
+    let map = scene.exact_map(0, &[0, 2, 4, 6, 8]);
+    let frame = scene.frame(5);
+    let to_ref = frontend.match_frames(&frame, &map.keyframes[2].data).unwrap();
+    let (fx, fy) = (scene.camera.focal_x(), scene.camera.focal_y());
+    for k in 0..map.keyframes.len() {
+        let kf = &map.keyframes[k].data;
+        let matched = frontend.match_frames(&frame, kf).unwrap();
+        let measured = flow_score(&frame.features.keypoints, &kf.features.keypoints, &matched, fx, fy).unwrap().score;
+        let predicted = crate::pipeline::predicted_flow(&map, &frame, &scene.camera, 2, &to_ref, k).unwrap();
+        assert!(
+            measured > 0.0 && (predicted - measured).abs() <= 0.1 * measured,
+            "keyframe {k}: predicted {predicted}, measured {measured}"
+        );
+    }
+    // Nothing carried (no matches to the reference): no prediction.
+    assert_eq!(crate::pipeline::predicted_flow(&map, &frame, &scene.camera, 2, &[], 0).unwrap(), f64::INFINITY);
 }
 
 // ----- initialisation --------------------------------------------------------

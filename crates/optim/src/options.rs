@@ -58,6 +58,14 @@ pub struct BaOptions {
     pub gradient_tolerance: f64,
     /// Stop when `|step| <= parameter_tolerance * (|x| + parameter_tolerance)`. Default 1e-8 (Ceres).
     pub parameter_tolerance: f64,
+    /// With refined intrinsics: also stop after an accepted step that lowered
+    /// the cost by at most `10 * function_tolerance` of it and moved every
+    /// camera's focal length by at most this fraction of itself. 0 (the
+    /// default) is off. A robust BA that refines the focal length can creep
+    /// along the focal length's valley, each Gauss-Newton step lowering the
+    /// cost a little and moving the focal length by hundredths of a pixel,
+    /// for as many iterations as it is allowed.
+    pub focal_step_tolerance: f64,
     /// Initial trust-region radius (1 / initial LM damping). Default 1e4 (Ceres).
     pub initial_trust_region_radius: f64,
     /// Threads for assembly; 0 uses the global rayon pool. Default 0.
@@ -93,6 +101,7 @@ impl Default for BaOptions {
             function_tolerance: 1e-6,
             gradient_tolerance: 1e-10,
             parameter_tolerance: 1e-8,
+            focal_step_tolerance: 0.0,
             initial_trust_region_radius: 1e4,
             num_threads: 0,
             linear_solver: LinearSolverType::Auto,
@@ -117,6 +126,7 @@ impl BaOptions {
             ("function_tolerance", self.function_tolerance),
             ("gradient_tolerance", self.gradient_tolerance),
             ("parameter_tolerance", self.parameter_tolerance),
+            ("focal_step_tolerance", self.focal_step_tolerance),
             ("pcg_tolerance", self.pcg_tolerance),
         ] {
             if !(v.is_finite() && v >= 0.0) {

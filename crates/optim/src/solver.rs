@@ -235,13 +235,17 @@ fn solve_impl(problem: &mut Problem, options: &BaOptions) -> Result<BaReport, Ba
                     let converged = cost_change.abs() <= options.function_tolerance * cost;
                     if rho > MIN_RELATIVE_DECREASE || (converged && cost_change >= 0.0) {
                         accepted = true;
+                        let creeping = options.focal_step_tolerance > 0.0
+                            && layout.blocks.len() > layout.num_pose_blocks
+                            && cost_change.abs() <= 10.0 * options.function_tolerance * cost
+                            && focal_steps_within(&state.cameras, &candidate.cameras, options.focal_step_tolerance);
                         state = candidate;
                         cost = new_cost;
                         report.successful_steps += 1;
                         let factor = (1.0 / 3.0f64).max(1.0 - (2.0 * rho - 1.0).powi(3));
                         radius = (radius / factor).min(MAX_TRUST_REGION_RADIUS);
                         decrease_factor = 2.0;
-                        if converged {
+                        if converged || creeping {
                             report.termination = Termination::FunctionTolerance;
                             break;
                         }
@@ -293,6 +297,16 @@ fn solve_impl(problem: &mut Problem, options: &BaOptions) -> Result<BaReport, Ba
     report.final_cost = cost;
     report.time = start.elapsed();
     Ok(report)
+}
+
+/// True when every camera's focal lengths moved by at most `tol` of
+/// themselves from `before` to `after`.
+fn focal_steps_within(before: &[Camera], after: &[Camera], tol: f64) -> bool {
+    before.iter().zip(after).all(|(a, b)| {
+        [(a.focal_x(), b.focal_x()), (a.focal_y(), b.focal_y())]
+            .iter()
+            .all(|(f0, f1)| (f1 - f0).abs() <= tol * f0.abs())
+    })
 }
 
 /// `0.5 * sum rho(|r|^2)` over the used observations; `None` when one of them
@@ -810,6 +824,57 @@ mod tests {
     use super::*;
     use crate::IntrinsicsRefinement;
     use crate::synthetic::{SyntheticOptions, perturb, synthetic_scene};
+
+    /// A BA that refines the focal length stops once a step moves it by
+    /// under `focal_step_tolerance` of itself and lowers the cost by under
+    /// ten times the function tolerance, at the cost the full solve reaches
+    /// (to 1e-4); with the intrinsics held the option changes nothing.
+    #[test]
+    fn a_creeping_focal_length_ends_the_solve() {
+        let camera = crate::residual::tests::sample_camera(colslam_camera::CameraModelId::SimpleRadial);
+        let s = synthetic_scene(&SyntheticOptions {
+            num_poses: 8,
+            num_points: 300,
+            camera: camera.clone(),
+            pixel_noise: 1.0,
+            seed: 5,
+            ..Default::default()
+        })
+        .unwrap();
+        let mut start = s.problem.clone();
+        perturb(&mut start, 0.01, 0.02, 0.05, 6);
+        start.poses[0].fixed = true;
+        start.poses[1].fixed_translation[2] = true;
+        let solve = |refine: bool, focal_step_tolerance: f64| {
+            let mut p = start.clone();
+            p.cameras[0].refine = if refine {
+                IntrinsicsRefinement::Params((0..p.cameras[0].camera.params.len()).collect())
+            } else {
+                IntrinsicsRefinement::Fixed
+            };
+            let o = BaOptions {
+                loss: LossFunction::Cauchy(1.0),
+                function_tolerance: 1e-9,
+                max_iterations: 200,
+                focal_step_tolerance,
+                ..Default::default()
+            };
+            let r = BundleAdjuster::solve(&mut p, &o).unwrap();
+            (r, p)
+        };
+        let (full, _) = solve(true, 0.0);
+        let (stopped, _) = solve(true, 1e-4);
+        assert!(stopped.iterations < full.iterations, "{} against {} iterations", stopped.iterations, full.iterations);
+        assert_eq!(stopped.termination, Termination::FunctionTolerance);
+        assert!((stopped.final_cost - full.final_cost).abs() <= 1e-4 * full.final_cost, "{stopped:?} {full:?}");
+        let ((held, p_held), (held_opt, p_held_opt)) = (solve(false, 0.0), solve(false, 1e-4));
+        assert_eq!((held.iterations, held.final_cost), (held_opt.iterations, held_opt.final_cost));
+        assert_eq!(
+            p_held.points.iter().map(|p| p.xyz).collect::<Vec<_>>(),
+            p_held_opt.points.iter().map(|p| p.xyz).collect::<Vec<_>>()
+        );
+        assert!(focal_steps_within(std::slice::from_ref(&camera), std::slice::from_ref(&camera), 0.0));
+    }
 
     /// The assembled gradient `J~^T r~` (robust corrector, compacted free
     /// dims, fixed translation coordinate) equals the finite-difference

@@ -164,6 +164,12 @@ pub const RADIAL_GAIN_CHI2: f64 = 10.83;
 /// rectified images) and 13-22 px (the synthetic lenses; docs/benchmarks.md).
 pub const MIN_RADIAL_SHIFT_PX: f64 = 2.0;
 
+/// `BaOptions::focal_step_tolerance` of the converged BAs that refine the
+/// focal length (a camera estimated from the video): a step that moves it
+/// by under 1e-4 of itself (0.05 px at 500 px) and lowers the cost by under
+/// 1e-5 of it ends the BA (docs/benchmarks.md, session 27).
+const SELF_CALIBRATION_FOCAL_STEP: f64 = 1e-4;
+
 /// Global refinements (BA, track completion, filtering) of a map whose
 /// camera was given a radial term. One: each is a converged BA of the
 /// intrinsics, which creeps along the focal length's valley to its 50
@@ -524,6 +530,9 @@ impl Mapper {
         let held = opts.refine.refine_intrinsics
             && !(self.constrains_focal() && (!refines_focal || self.views_fix_focal()?));
         let refine = opts.refine.refine_intrinsics && !held;
+        if refine && refines_focal && tolerance == GlobalBaTolerance::Converged {
+            ba.ba.focal_step_tolerance = SELF_CALIBRATION_FOCAL_STEP;
+        }
         let frees_centre = final_ba && self.free_principal_point(&mut ba, opts)?;
         self.log_global_probe("before");
         let before = self.focal()?;
@@ -628,7 +637,8 @@ impl Mapper {
             return Ok(());
         }
         let camera = self.camera()?.clone();
-        let ba = opts.global_ba(GlobalBaTolerance::Converged, true);
+        let mut ba = opts.global_ba(GlobalBaTolerance::Converged, true);
+        ba.ba.focal_step_tolerance = SELF_CALIBRATION_FOCAL_STEP;
         let min_track = self.min_track(opts);
         let adjust = |rec: &mut Reconstruction| {
             adjust_global_long_tracks(rec, true, &ba, min_track, MIN_LONG_TRACK_OBSERVATIONS)

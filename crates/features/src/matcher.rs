@@ -80,6 +80,17 @@ struct Best {
 impl Best {
     const EMPTY: Best = Best { d1: u32::MAX, d2: u32::MAX, i1: u32::MAX };
 
+    /// From the best and second best packed as `(distance << 32) | index`
+    /// ([`NONE`] for none; both none give [`Best::EMPTY`]).
+    #[inline(always)]
+    fn from_packed(first: u64, second: u64) -> Self {
+        Best {
+            d1: (first >> 32) as u32,
+            i1: (first & 0xffff_ffff) as u32,
+            d2: if second == NONE { u32::MAX } else { (second >> 32) as u32 },
+        }
+    }
+
     /// Offers train `j` at distance `d`; the common case (`d >= d2`) costs
     /// one compare.
     #[inline(always)]
@@ -144,15 +155,22 @@ fn offer_rev(r: &mut u64, d: u32, qi: usize) {
     }
 }
 
+/// Inserts packed `v` into the two smallest `r1 <= r2` (packed values are
+/// distinct, the index being part of them); branch-free, so the loops over
+/// train rows vectorise.
+#[inline(always)]
+fn push_two(r1: &mut u64, r2: &mut u64, v: u64) {
+    let hi = (*r1).max(v);
+    *r1 = (*r1).min(v);
+    *r2 = (*r2).min(hi);
+}
+
 /// Offers query `qi` at distance `d` as one of the two nearest queries of a
 /// train row (`r1` the nearest, `r2` the second, packed).
 #[inline(always)]
 fn offer_rev2(r1: &mut u64, r2: &mut u64, d: u32, qi: usize) {
     if (d as u64) <= (*r2 >> 32) {
-        let v = pack(d, qi);
-        let hi = (*r1).max(v);
-        *r1 = (*r1).min(v);
-        *r2 = (*r2).min(hi);
+        push_two(r1, r2, pack(d, qi));
     }
 }
 
@@ -263,10 +281,7 @@ fn soa_kernel<const TWO: bool>(
         }
         if TWO {
             for ((r1, r2), &key) in rev.iter_mut().zip(rev2.iter_mut()).zip(&keys) {
-                let v = (key & !0xffff_ffff) | qi;
-                let hi = (*r1).max(v);
-                *r1 = (*r1).min(v);
-                *r2 = (*r2).min(hi);
+                push_two(r1, r2, (key & !0xffff_ffff) | qi);
             }
         } else {
             for (r, &key) in rev.iter_mut().zip(&keys) {
@@ -289,11 +304,7 @@ fn soa_kernel<const TWO: bool>(
             top.push(v);
         }
         if top.first != NONE {
-            *b = Best {
-                d1: (top.first >> 32) as u32,
-                i1: (top.first & 0xffff_ffff) as u32,
-                d2: if top.second == NONE { u32::MAX } else { (top.second >> 32) as u32 },
-            };
+            *b = Best::from_packed(top.first, top.second);
         }
     }
 }
@@ -405,9 +416,8 @@ impl Reverse {
         Self { first: vec![NONE; n], second: if TWO { vec![NONE; n] } else { Vec::new() } }
     }
 
-    /// The two nearest of both: every packed value is distinct (the query
-    /// index is part of it), so the second is the smaller of the larger
-    /// first and the smaller second.
+    /// The two nearest of both: the other's nearest, then its second,
+    /// inserted into this one's two.
     fn merge(mut self, other: Reverse) -> Self {
         if self.second.is_empty() {
             for (x, y) in self.first.iter_mut().zip(other.first) {
@@ -417,9 +427,8 @@ impl Reverse {
             for ((x1, x2), (y1, y2)) in
                 self.first.iter_mut().zip(self.second.iter_mut()).zip(other.first.into_iter().zip(other.second))
             {
-                let hi = (*x1).max(y1);
-                *x1 = (*x1).min(y1);
-                *x2 = (*x2).min(y2).min(hi);
+                push_two(x1, x2, y1);
+                push_two(x1, x2, y2);
             }
         }
         self
@@ -508,16 +517,8 @@ impl NnMatcher {
             return (Vec::new(), Vec::new());
         }
         let (forward, rev) = nn_binary::<true>(a, b, kernel);
-        let backward: Vec<Best> = rev
-            .first
-            .iter()
-            .zip(&rev.second)
-            .map(|(&r1, &r2)| Best {
-                d1: (r1 >> 32) as u32,
-                i1: (r1 & 0xffff_ffff) as u32,
-                d2: if r2 == NONE { u32::MAX } else { (r2 >> 32) as u32 },
-            })
-            .collect();
+        let backward: Vec<Best> =
+            rev.first.iter().zip(&rev.second).map(|(&r1, &r2)| Best::from_packed(r1, r2)).collect();
         let ab = self.filter(&forward, |j| backward.get(j).map(|r| r.i1 as usize));
         let ba = self.filter(&backward, |i| forward.get(i).map(|r| r.i1 as usize));
         (ab, ba)

@@ -237,6 +237,17 @@ impl Camera {
         Self { model, params: [self.params.as_slice(), extra].concat(), ..*self }
     }
 
+    /// This SIMPLE_RADIAL camera as RADIAL with its second radial term at 0
+    /// (the one-term fit of a lens that needs two, for bundle adjustment to
+    /// extend); any other model is returned as it is.
+    pub fn with_second_radial_term(&self) -> Self {
+        if self.model != CameraModelId::SimpleRadial {
+            return self.clone();
+        }
+        // SIMPLE_RADIAL's f, cx, cy, k lead RADIAL's f, cx, cy, k1, k2.
+        Self { model: CameraModelId::Radial, params: [self.params.as_slice(), &[0.0]].concat(), ..*self }
+    }
+
     /// Checks parameter count, finiteness, positive focal length(s),
     /// positive size and a principal point within
     /// [`MAX_PRINCIPAL_POINT_OUTSIDE`] image sizes of the image.
@@ -395,6 +406,9 @@ mod tests {
         let s = Camera::simple_pinhole(640, 480, 500.0, 320.0, 240.0).with_radial_term();
         assert_eq!((s.model, s.params.as_slice()), (CameraModelId::SimpleRadial, &[500.0, 320.0, 240.0, 0.0][..]));
         assert_eq!(s.with_radial_term(), s, "a model with distortion terms stays as it is");
+        let r = Camera { params: vec![500.0, 320.0, 240.0, 0.05], ..s.clone() }.with_second_radial_term();
+        assert_eq!((r.model, r.params.as_slice()), (CameraModelId::Radial, &[500.0, 320.0, 240.0, 0.05, 0.0][..]));
+        assert_eq!(r.with_second_radial_term(), r, "only SIMPLE_RADIAL gains a term");
     }
 
     #[test]

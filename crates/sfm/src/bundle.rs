@@ -57,6 +57,10 @@ pub enum RefinedIntrinsics {
     /// [`Self::Calibration`]'s parameters and the principal point: a
     /// self-calibration's final BA, once the map carries it.
     WithPrincipalPoint,
+    /// The focal length(s) and every distortion term of the model, zero or
+    /// not: an estimated camera's term just added at 0, which
+    /// [`Self::Calibration`] would hold beside the non-zero ones.
+    EveryTerm,
 }
 
 impl BundleOptions {
@@ -108,7 +112,8 @@ pub fn covisible_images(rec: &Reconstruction, image_id: ImageId, min_shared: usi
 /// fr1 drove k1 to 26. A camera without any distortion value (a guess)
 /// refines every term of its model. The principal point stays fixed, as in
 /// COLMAP, unless [`RefinedIntrinsics::WithPrincipalPoint`] frees it. With [`RefinedIntrinsics::FirstRadial`], the model's first
-/// radial term alone (none for a model without distortion).
+/// radial term alone (none for a model without distortion); with
+/// [`RefinedIntrinsics::EveryTerm`], every term of the model.
 pub fn refined_intrinsics(camera: &colslam_camera::Camera, which: RefinedIntrinsics) -> IntrinsicsRefinement {
     let model = camera.model;
     if which == RefinedIntrinsics::FirstRadial {
@@ -119,6 +124,10 @@ pub fn refined_intrinsics(camera: &colslam_camera::Camera, which: RefinedIntrins
     }
     let mut idx: Vec<usize> = model.focal_length_idxs().to_vec();
     let extras = model.extra_params_idxs();
+    if which == RefinedIntrinsics::EveryTerm {
+        idx.extend_from_slice(extras);
+        return IntrinsicsRefinement::Params(idx);
+    }
     let used: Vec<usize> =
         extras.iter().copied().filter(|&i| camera.params.get(i).is_some_and(|v| *v != 0.0)).collect();
     idx.extend(if used.is_empty() { extras.to_vec() } else { used });
@@ -486,5 +495,14 @@ mod tests {
             refined_intrinsics(&tum, RefinedIntrinsics::WithPrincipalPoint),
             IntrinsicsRefinement::Params(vec![0, 1, 2, 3, 4, 5, 6, 7, 8])
         );
+        // A term just added at 0 is refined with the others.
+        let two = radial.with_second_radial_term();
+        assert_eq!(
+            refined_intrinsics(&two, RefinedIntrinsics::Calibration),
+            IntrinsicsRefinement::Params(vec![0, 3, 4])
+        );
+        let two = Camera { params: vec![600.0, 320.0, 240.0, 0.05, 0.0], ..two };
+        assert_eq!(refined_intrinsics(&two, RefinedIntrinsics::Calibration), IntrinsicsRefinement::Params(vec![0, 3]));
+        assert_eq!(refined_intrinsics(&two, RefinedIntrinsics::EveryTerm), IntrinsicsRefinement::Params(vec![0, 3, 4]));
     }
 }

@@ -71,7 +71,7 @@ pub fn centred_camera(w: u32, h: u32, f: f64) -> Camera {
 /// Points sampled on each segment from the principal point to a corner by
 /// [`distortion_shift`] and [`term_shift`]: a two-term lens (RADIAL) can
 /// move the corners less than the image's middle (TUM fr1's fit k1 0.10,
-/// k2 -0.20 moves them 0.3 px and a third of the way out 4 px).
+/// k2 -0.20 moves them under 1 px and three quarters of the way out 4 px).
 const SHIFT_SAMPLES: usize = 32;
 
 /// How far `camera`'s distortion terms move image points, pixels: the

@@ -165,7 +165,7 @@ pub const RADIAL_GAIN_CHI2: f64 = 10.83;
 /// rectified images) and 13-22 px (the synthetic lenses; docs/benchmarks.md).
 pub const MIN_RADIAL_SHIFT_PX: f64 = 2.0;
 
-/// Least fraction of the final BA's cost a second radial term must remove
+/// Least fraction of the trial BA's cost a second radial term must remove
 /// to be kept (with [`RADIAL_GAIN_CHI2`] and [`MIN_RADIAL_SHIFT_PX`] for its
 /// own move of the image). An effect size, not only a significance: the
 /// residuals of 10^5 observations are not independent (a track, a frame,
@@ -665,15 +665,15 @@ impl Mapper {
     /// it: a converged global BA of the map with SIMPLE_PINHOLE, then one
     /// with SIMPLE_RADIAL (k from 0) from its optimum, both with the
     /// principal point held at the centre (COLMAP's setting), and the radial
-    /// camera kept when its cost
-    /// gain is significant ([`RADIAL_GAIN_CHI2`]), it moves the image's
-    /// corners by at least [`MIN_RADIAL_SHIFT_PX`] and its parameters are
-    /// plausible (COLMAP's bogus-camera check); a kept term may gain a
-    /// second ([`Self::try_second_radial_term`]). Then the final refinements
-    /// free the principal point, with the terms if kept, and drop a lens
-    /// that moves the image by under [`MIN_RADIAL_SHIFT_PX`] there. Only now: the map
-    /// made with the focal length alone carries k, while k freed from the
-    /// first keyframes trades against the focal length (docs/history.md).
+    /// camera kept when its cost gain is significant ([`RADIAL_GAIN_CHI2`]),
+    /// it moves the image's corners by at least [`MIN_RADIAL_SHIFT_PX`] and
+    /// its parameters are plausible (COLMAP's bogus-camera check); a kept
+    /// term may gain a second ([`Self::try_second_radial_term`]). Then the
+    /// final refinements free the principal point, with the terms if kept,
+    /// and drop a lens that moves the image by under [`MIN_RADIAL_SHIFT_PX`]
+    /// there. Only now: the map made with the focal length alone carries k,
+    /// while k freed from the first keyframes trades against the focal
+    /// length (docs/history.md).
     fn try_radial_distortion(&mut self, opts: &SlamOptions, timings: &mut StageTimings) -> Result<(), SfmError> {
         if !self.radial_pending(opts)? {
             return Ok(());
@@ -754,16 +754,16 @@ impl Mapper {
 
     /// Once the trial kept a radial term, tries a second (SIMPLE_RADIAL to
     /// RADIAL, k2 from 0) on the trial's converged map `one` (its BA's
-    /// report `one_report`): a converged global BA with both terms from the
-    /// same state (the principal point held at the centre, as in the
-    /// trial), the second kept when its gain is significant
-    /// ([`RADIAL_GAIN_CHI2`]), removes at least [`SECOND_RADIAL_MIN_GAIN`] of
-    /// the cost, moves the image by at least [`MIN_RADIAL_SHIFT_PX`] on its
-    /// own and the camera is plausible. Returns the map to refine on: with
-    /// both terms or `one` as it was. A lens that one term does not describe
-    /// otherwise pulls the focal length along with the term (the synthetic
-    /// pincushion lens ended 0.8 % long and its trajectory 2.5x the
-    /// calibrated run's).
+    /// report `one_report`): a global BA with both terms from the same
+    /// state to [`SECOND_RADIAL_TRIAL_TOLERANCE`] (the principal point held
+    /// at the centre, as in the trial), the second kept when its gain is
+    /// significant ([`RADIAL_GAIN_CHI2`]), removes at least
+    /// [`SECOND_RADIAL_MIN_GAIN`] of the cost, moves the image by at least
+    /// [`MIN_RADIAL_SHIFT_PX`] on its own and the camera is plausible.
+    /// Returns the map to refine on: with both terms or `one` as it was. A
+    /// lens that one term does not describe otherwise pulls the focal length
+    /// along with the term (the synthetic pincushion lens ended 0.8 % long
+    /// and its trajectory 2.5x the calibrated run's).
     fn try_second_radial_term(
         &self,
         one: Reconstruction,

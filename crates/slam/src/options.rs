@@ -557,7 +557,7 @@ pub struct RefineOptions {
     /// Always on for a camera whose focal length was guessed.
     #[cfg_attr(feature = "cli", arg(long))]
     pub refine_intrinsics: bool,
-    /// Try radial distortion terms (SIMPLE_RADIAL, then RADIAL) on a refined guess.
+    /// Try radial distortion terms (SIMPLE_RADIAL, RADIAL) on a refined guess.
     ///
     /// With refined intrinsics of a one-focal pinhole camera (a guess or an estimate), once the map is made: the term is kept when it fits significantly better (chi-square) and moves the image's corners by at least 2 px; a kept term gains a second (RADIAL) when that one also removes at least 0.5 % of the cost (a lens one term does not describe; a forward drive's spurious second term removes far less). Then the final BAs free the principal point with them (`--refine-principal-point`), as COLMAP refines a SIMPLE_RADIAL camera, and a lens that moves the image by under 2 px there (it stood in for the principal point's offset) is dropped.
     ///

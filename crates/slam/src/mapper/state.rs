@@ -226,6 +226,17 @@ fn chi_square_gain(without: &colslam_optim::BaReport, with: &colslam_optim::BaRe
     2.0 * (without.final_cost - with.final_cost) / variance.max(f64::MIN_POSITIVE)
 }
 
+/// A trial bundle adjustment of a copy of the map (`rec`): the global BA
+/// of the long tracks with the intrinsics refined, as the final ones.
+fn trial_ba(
+    rec: &mut Reconstruction,
+    ba: &BundleOptions,
+    min_track: usize,
+    timings: &mut StageTimings,
+) -> Result<colslam_optim::BaReport, SfmError> {
+    timings.time(Stage::GlobalBa, || adjust_global_long_tracks(rec, true, ba, min_track, MIN_LONG_TRACK_OBSERVATIONS))
+}
+
 /// Scale between ORB pyramid levels: a keypoint found at octave `o` is
 /// located to about `ORB_LEVEL_SCALE^o` pixels (ORB-SLAM's level sigma).
 pub const ORB_LEVEL_SCALE: f32 = 1.2;
@@ -682,9 +693,7 @@ impl Mapper {
         ba.ba.focal_step_tolerance = SELF_CALIBRATION_FOCAL_STEP;
         let min_track = self.min_track(opts);
         let mut pinhole = self.rec.clone();
-        let p = timings.time(Stage::GlobalBa, || {
-            adjust_global_long_tracks(&mut pinhole, true, &ba, min_track, MIN_LONG_TRACK_OBSERVATIONS)
-        })?;
+        let p = trial_ba(&mut pinhole, &ba, min_track, timings)?;
         // The term is tried from the pinhole's optimum: its BA starts where
         // the pinhole's ended, so whatever it lowers the cost by is the
         // term's, and it converges in fewer iterations than from the map
@@ -693,9 +702,7 @@ impl Mapper {
         if let Some(c) = radial.camera_mut(self.camera_id) {
             *c = c.with_radial_term();
         }
-        let r = timings.time(Stage::GlobalBa, || {
-            adjust_global_long_tracks(&mut radial, true, &ba, min_track, MIN_LONG_TRACK_OBSERVATIONS)
-        })?;
+        let r = trial_ba(&mut radial, &ba, min_track, timings)?;
         tracing::debug!(
             "map {}: radial trial: pinhole {:.5e} -> {:.5e} in {} iterations ({:.2} s), radial {:.5e} -> {:.5e} in {} iterations ({:.2} s)",
             self.index,
@@ -782,14 +789,12 @@ impl Mapper {
         }
         let mut ba = BundleOptions { intrinsics: RefinedIntrinsics::EveryTerm, ..ba.clone() };
         ba.ba.function_tolerance = SECOND_RADIAL_TRIAL_TOLERANCE;
-        let r = timings.time(Stage::GlobalBa, || {
-            adjust_global_long_tracks(&mut two, true, &ba, min_track, MIN_LONG_TRACK_OBSERVATIONS)
-        })?;
+        let r = trial_ba(&mut two, &ba, min_track, timings)?;
         let p = one_report;
         let gain = chi_square_gain(p, &r);
         let share = (p.final_cost - r.final_cost) / p.final_cost.max(f64::MIN_POSITIVE);
         let refined = self.camera_in(&two)?.clone();
-        let shift = refined.model.extra_params_idxs().get(1).map_or(0.0, |&k2| calibrate::term_shift(&refined, k2));
+        let shift = calibrate::term_shift(&refined, refined.model.extra_params_idxs().get(1..).unwrap_or_default());
         let plausible = plausible_camera(&refined);
         let keep = plausible
             && r.num_residuals == p.num_residuals

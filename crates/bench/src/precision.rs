@@ -26,6 +26,8 @@
 use crate::stdout::outln;
 use crate::suite::{self, Ctx, check_timeout, output_root, sequences};
 use anyhow::{Context, Result, bail};
+use colslam_camera::PixelConvention;
+use colslam_estimators::{TriangulationOptions, triangulate_multiview};
 use colslam_features::{FeatureExtractor, Features, Matcher, NnMatcher, NnMatcherOptions, OrbExtractor, OrbOptions};
 use colslam_geometry::Vec2;
 use colslam_slam::options::FrontendOptions;
@@ -279,6 +281,91 @@ pub fn model_stats(dir: &Path) -> Result<ModelStats> {
     })
 }
 
+/// The final model's observations against the synthetic generator's exact
+/// poses: each track is triangulated from its observations at its frames'
+/// true poses, and each observation's error is its distance from that
+/// point's projection. This is what the bundle adjustment is fed, after
+/// every refinement of the observations, apart from the estimated poses:
+/// observations that no single point explains under the true poses pull
+/// the estimated ones away from the truth, whatever the solver does.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct ObservationError {
+    /// Tracks measured (at least two observations, triangulated in front of
+    /// every camera of the track).
+    pub tracks: usize,
+    /// Their observations.
+    pub observations: usize,
+    /// Root mean square error, pixels.
+    pub rms_px: f64,
+    /// Median error, pixels.
+    pub median_px: f64,
+    /// 90th percentile of the error, pixels.
+    pub p90_px: f64,
+    /// Share of the observations more than 1 px off.
+    pub over_1px: f64,
+    /// Share of the squared error those carry.
+    pub over_1px_sq_share: f64,
+}
+
+/// The frame index of a synthetic sequence's image name (`rgb/000012.png`).
+fn synthetic_frame(name: &str) -> Option<usize> {
+    Path::new(name).file_stem()?.to_str()?.parse().ok()
+}
+
+/// [`ObservationError`] of the model in `dir` on the synthetic `seq`.
+pub fn observation_error(seq: &SyntheticSequence, dir: &Path) -> Result<ObservationError> {
+    let rec = colslam_scene::read_model(dir).with_context(|| format!("reading the model in {}", dir.display()))?;
+    // No angle or error limit: every track is measured as it is.
+    let tri = TriangulationOptions { min_tri_angle_deg: 0.0, max_reproj_error: f64::INFINITY, refine_iterations: 10 };
+    // The model's keypoints are in COLMAP's pixel convention, the
+    // generator's camera in OpenCV's.
+    let shift = PixelConvention::Colmap.offset_to(PixelConvention::OpenCv);
+    let mut errors = Vec::new();
+    let mut tracks = 0;
+    for (_, p) in rec.points3d() {
+        let mut views = Vec::with_capacity(p.track.len());
+        for el in &p.track {
+            let img = rec.image(el.image_id).context("a track names a missing image")?;
+            let kp = img.points2d.get(el.point2d_idx as usize).context("a track names a missing keypoint")?;
+            let frame = synthetic_frame(&img.name)
+                .with_context(|| format!("image {:?} is not a frame of the synthetic sequence", img.name))?;
+            let pose = seq.cam_from_world(frame)?;
+            let xy = kp.xy.add_scalar(shift);
+            let Some(n) = seq.camera().cam_from_img(&xy) else { continue };
+            views.push((frame, xy, pose, n));
+        }
+        if views.len() < 2 {
+            continue;
+        }
+        let poses: Vec<_> = views.iter().map(|v| v.2).collect();
+        let normalized: Vec<_> = views.iter().map(|v| v.3).collect();
+        let Ok(point) = triangulate_multiview(&poses, &normalized, &tri) else { continue };
+        let mut track_errors = Vec::with_capacity(views.len());
+        for (frame, xy, _, _) in &views {
+            let Some((px, _)) = seq.project(*frame, &point.point)? else { break };
+            track_errors.push((xy - px).norm());
+        }
+        if track_errors.len() == views.len() {
+            tracks += 1;
+            errors.extend(track_errors);
+        }
+    }
+    let total_sq: f64 = errors.iter().map(|e| e * e).sum();
+    let over: Vec<f64> = errors.iter().copied().filter(|e| *e > 1.0).collect();
+    let n = errors.len().max(1) as f64;
+    let mut sorted = errors.clone();
+    sorted.sort_by(f64::total_cmp);
+    Ok(ObservationError {
+        tracks,
+        observations: errors.len(),
+        rms_px: rms(&errors),
+        median_px: crate::median(&errors),
+        p90_px: sorted.get((sorted.len() * 9) / 10).copied().unwrap_or(f64::NAN),
+        over_1px: over.len() as f64 / n,
+        over_1px_sq_share: over.iter().map(|e| e * e).sum::<f64>() / total_sq.max(f64::MIN_POSITIVE),
+    })
+}
+
 /// One sequence of the report.
 #[derive(Debug, Clone, Serialize)]
 pub struct PrecisionRow {
@@ -302,6 +389,8 @@ pub struct PrecisionRow {
     pub wall_s: Option<f64>,
     /// The final model's statistics.
     pub model: Option<ModelStats>,
+    /// The final model's observations against the exact geometry (synthetic only).
+    pub observations: Option<ObservationError>,
 }
 
 /// The whole report.
@@ -359,6 +448,7 @@ pub fn run(args: &Args, quiet: bool, threads: Option<usize>) -> Result<()> {
             ms_per_frame: None,
             wall_s: None,
             model: None,
+            observations: None,
         };
         if let Some(opts) = &seq.synth {
             let [integer, subpixel] =
@@ -423,10 +513,25 @@ fn run_sequence(ctx: &Ctx, seq: &sequences::Sequence, setting: &str, flags: &[St
     row.ms_per_frame = run.ms_per_frame;
     row.wall_s = run.wall_s;
     if run.reason.is_none() {
-        match model_stats(&ctx.out.join(&run.output_dir)) {
+        let dir = ctx.out.join(&run.output_dir);
+        match model_stats(&dir) {
             Ok(m) => row.model = Some(m),
             Err(e) => row.reason = Some(format!("{e:#}")),
         }
+        if let Some(opts) = &seq.synth {
+            match SyntheticSequence::new(opts).map_err(anyhow::Error::from).and_then(|s| observation_error(&s, &dir)) {
+                Ok(o) => row.observations = Some(o),
+                Err(e) => row.reason = Some(format!("observation error: {e:#}")),
+            }
+        }
+    }
+}
+
+/// A row's label: the sequence, and its stage under `--stages`.
+fn row_name(row: &PrecisionRow) -> String {
+    match &row.stage {
+        Some(stage) => format!("{} ({stage})", row.sequence),
+        None => row.sequence.clone(),
     }
 }
 
@@ -497,10 +602,7 @@ pub fn markdown(r: &PrecisionReport) -> String {
         s += "|---|---|---|---|---|---|---|---|---|\n";
         for row in &runs {
             let m = row.model.as_ref();
-            let name = match &row.stage {
-                Some(stage) => format!("{} ({stage})", row.sequence),
-                None => row.sequence.clone(),
-            };
+            let name = row_name(row);
             s += &format!(
                 "| {} | {} | {} | {} | {} | {} | {} / {} | {} / {} | {} |\n",
                 name,
@@ -518,6 +620,26 @@ pub fn markdown(r: &PrecisionReport) -> String {
                     |m| m.track_buckets.iter().map(|c| c.to_string()).collect::<Vec<_>>().join(" / ")
                 ),
             );
+        }
+        let obs: Vec<&&PrecisionRow> = runs.iter().filter(|r| r.observations.is_some()).collect();
+        if !obs.is_empty() {
+            s += "\n### The final model's observations against the true poses (synthetic; each track triangulated there)\n\n";
+            s += "| sequence | tracks | observations | RMS px | median px | 90 % px | over 1 px | their share of the squared error |\n";
+            s += "|---|---|---|---|---|---|---|---|\n";
+            for row in obs {
+                let Some(o) = &row.observations else { continue };
+                let name = row_name(row);
+                s += &format!(
+                    "| {name} | {} | {} | {:.3} | {:.3} | {:.3} | {:.1} % | {:.1} % |\n",
+                    o.tracks,
+                    o.observations,
+                    o.rms_px,
+                    o.median_px,
+                    o.p90_px,
+                    100.0 * o.over_1px,
+                    100.0 * o.over_1px_sq_share
+                );
+            }
         }
         for row in runs.iter().filter(|r| r.reason.is_some()) {
             s += &format!("\n{}: {}\n", row.sequence, row.reason.as_deref().unwrap_or(""));
@@ -579,6 +701,7 @@ mod tests {
             ms_per_frame: None,
             wall_s: None,
             model: None,
+            observations: None,
         }
     }
 
@@ -598,6 +721,61 @@ mod tests {
         assert_eq!(room, "| room | 0.400 | 0.200 (0.50x) | - | 0.100 | 0.080 (0.80x) |");
         let fountain = table.lines().find(|l| l.starts_with("| fountain |")).unwrap();
         assert_eq!(fountain, "| fountain | 0.300 | - | - | - | - |");
+    }
+
+    /// A model of exact observations has no observation error; moving one
+    /// observation of each track by 2 px shows as error over 1 px, which
+    /// carries most of the squared error. The model is written in COLMAP's
+    /// pixel convention, as `colslam run` writes it: a convention mix-up
+    /// would leave a residual on the exact model.
+    #[test]
+    fn the_observation_error_is_zero_on_exact_observations_and_shows_a_moved_one() {
+        use colslam_scene::{Image, ModelFormat, Reconstruction, TrackElement, write_model};
+        // Four frames well apart; the camera moves sideways, so an
+        // observation moved down cannot be absorbed by the point's depth.
+        let frames = [0, 15, 30, 45];
+        let seq = SyntheticSequence::new(&colslam_synth::SynthOptions { frames: 46, ..Default::default() }).unwrap();
+        let to_colmap = PixelConvention::OpenCv.offset_to(PixelConvention::Colmap);
+        let build = |moved: f64| {
+            let mut tracks: Vec<(colslam_geometry::Vec3, Vec<Vec2>)> = Vec::new();
+            for p in seq.visible_points(0, 200, 7).unwrap() {
+                let seen: Vec<Vec2> = frames.iter().filter_map(|i| seq.observe(*i, &p.world).unwrap()).collect();
+                if seen.len() == 4 {
+                    tracks.push((p.world, seen));
+                }
+            }
+            let mut rec = Reconstruction::new();
+            let camera = seq.camera().convert_pixel_convention(PixelConvention::OpenCv, PixelConvention::Colmap);
+            let cam = rec.add_camera(camera);
+            for (i, frame) in frames.into_iter().enumerate() {
+                let xy: Vec<Vec2> = tracks
+                    .iter()
+                    .map(|(_, seen)| seen[i].add_scalar(to_colmap) + Vec2::new(0.0, if i == 0 { moved } else { 0.0 }))
+                    .collect();
+                let id = colslam_scene::ImageId(i as u32 + 1);
+                let mut img = Image::new(id, colslam_synth::output::frame_name(frame), cam, xy);
+                img.cam_from_world = seq.cam_from_world(frame).unwrap();
+                rec.add_image(img).unwrap();
+                rec.register_image(id).unwrap();
+            }
+            for (k, (world, _)) in tracks.iter().enumerate() {
+                let track = (0..4).map(|i| TrackElement::new(colslam_scene::ImageId(i as u32 + 1), k as u32)).collect();
+                rec.add_point3d(*world, [0, 0, 0], track).unwrap();
+            }
+            let dir = tempfile::tempdir().unwrap();
+            write_model(&rec, dir.path(), ModelFormat::Binary).unwrap();
+            (observation_error(&seq, dir.path()).unwrap(), tracks.len())
+        };
+        let (exact, n) = build(0.0);
+        assert!(n >= 30, "{n} points seen in all four frames");
+        assert_eq!((exact.tracks, exact.observations), (n, 4 * n));
+        assert!(exact.rms_px < 1e-6 && exact.over_1px == 0.0, "{exact:?}");
+        let (moved, _) = build(2.0);
+        // The moved observation keeps about three quarters of the 2 px, the
+        // other three share the rest: one in four over 1 px, with about
+        // 2.25 / (2.25 + 3 x 0.25) of the squared error.
+        assert!((moved.over_1px - 0.25).abs() < 1e-9, "{moved:?}");
+        assert!(moved.over_1px_sq_share > 0.6 && moved.rms_px > 0.7, "{moved:?}");
     }
 
     #[test]

@@ -410,10 +410,9 @@ pub struct PrecisionReport {
 
 /// Both localisation errors of a synthetic sequence, with the pipeline's
 /// ORB options and matcher thresholds.
-fn keypoint_errors(opts: &colslam_synth::SynthOptions, args: &Args) -> Result<[LocalisationError; 2]> {
-    let seq = SyntheticSequence::new(opts)?;
+fn keypoint_errors(seq: &SyntheticSequence, args: &Args) -> Result<[LocalisationError; 2]> {
     let fo = FrontendOptions::default();
-    let n = fo.features_for(opts.width as u64, opts.height as u64);
+    let n = fo.features_for(seq.options().width as u64, seq.options().height as u64);
     let matcher = NnMatcherOptions { max_hamming: fo.max_hamming, max_ratio: fo.max_ratio, ..Default::default() };
     let pairs = frame_pairs(seq.num_frames(), args.pairs, args.gap);
     if pairs.is_empty() {
@@ -422,7 +421,7 @@ fn keypoint_errors(opts: &colslam_synth::SynthOptions, args: &Args) -> Result<[L
     let run = |subpixel: bool| {
         let orb =
             colslam_slam::frontend::orb_options(&FrontendOptions { subpixel_keypoints: subpixel, ..fo.clone() }, n);
-        localisation_error(&seq, &orb, &matcher, &pairs)
+        localisation_error(seq, &orb, &matcher, &pairs)
     };
     Ok([run(false)?, run(true)?])
 }
@@ -450,9 +449,17 @@ pub fn run(args: &Args, quiet: bool, threads: Option<usize>) -> Result<()> {
             model: None,
             observations: None,
         };
-        if let Some(opts) = &seq.synth {
+        // A synthetic sequence's scene and rays, built once for the
+        // keypoint errors and every run's observation error.
+        let synth = seq
+            .synth
+            .as_ref()
+            .map(SyntheticSequence::new)
+            .transpose()
+            .with_context(|| format!("building the synthetic sequence {}", seq.name))?;
+        if let Some(synth) = &synth {
             let [integer, subpixel] =
-                keypoint_errors(opts, args).with_context(|| format!("keypoint localisation error on {}", seq.name))?;
+                keypoint_errors(synth, args).with_context(|| format!("keypoint localisation error on {}", seq.name))?;
             row.keypoints_integer = Some(integer);
             row.keypoints_subpixel = Some(subpixel);
         }
@@ -470,7 +477,7 @@ pub fn run(args: &Args, quiet: bool, threads: Option<usize>) -> Result<()> {
                 }
                 let mut all: Vec<String> = flags.iter().map(|f| (*f).to_string()).collect();
                 all.extend(args.run_flags.iter().cloned());
-                run_sequence(&ctx, seq, &format!("stage{k}"), &all, &mut stage);
+                run_sequence(&ctx, seq, synth.as_ref(), &format!("stage{k}"), &all, &mut stage);
                 if !quiet {
                     eprintln!("{} ({label}): {}", seq.name, stage.status.as_deref().unwrap_or("measured"));
                 }
@@ -478,7 +485,7 @@ pub fn run(args: &Args, quiet: bool, threads: Option<usize>) -> Result<()> {
             }
         } else {
             if !args.keypoints_only && prepared.is_ok() {
-                run_sequence(&ctx, seq, &args.run_flags.join(" "), &args.run_flags, &mut row);
+                run_sequence(&ctx, seq, synth.as_ref(), &args.run_flags.join(" "), &args.run_flags, &mut row);
             }
             if !quiet {
                 eprintln!("{}: {}", seq.name, row.status.as_deref().unwrap_or("measured"));
@@ -504,8 +511,16 @@ pub fn run(args: &Args, quiet: bool, threads: Option<usize>) -> Result<()> {
     Ok(())
 }
 
-/// Runs colslam on the prepared `seq` (the suite's runner) and reads its model.
-fn run_sequence(ctx: &Ctx, seq: &sequences::Sequence, setting: &str, flags: &[String], row: &mut PrecisionRow) {
+/// Runs colslam on the prepared `seq` (the suite's runner) and reads its
+/// model; `synth` is the sequence's generator when it is synthetic.
+fn run_sequence(
+    ctx: &Ctx,
+    seq: &sequences::Sequence,
+    synth: Option<&SyntheticSequence>,
+    setting: &str,
+    flags: &[String],
+    row: &mut PrecisionRow,
+) {
     let run = suite::run_colslam(ctx, seq, setting, flags, 1);
     row.status = Some(run.status.label().to_string());
     row.reason = run.reason.clone();
@@ -518,8 +533,8 @@ fn run_sequence(ctx: &Ctx, seq: &sequences::Sequence, setting: &str, flags: &[St
             Ok(m) => row.model = Some(m),
             Err(e) => row.reason = Some(format!("{e:#}")),
         }
-        if let Some(opts) = &seq.synth {
-            match SyntheticSequence::new(opts).map_err(anyhow::Error::from).and_then(|s| observation_error(&s, &dir)) {
+        if let Some(synth) = synth {
+            match observation_error(synth, &dir) {
                 Ok(o) => row.observations = Some(o),
                 Err(e) => row.reason = Some(format!("observation error: {e:#}")),
             }
@@ -797,7 +812,7 @@ mod tests {
         let cmd = <Args as clap::Args>::augment_args(clap::Command::new("t"));
         let matches = cmd.get_matches_from(["t", "--pairs", "10", "--gap", "1"]);
         let args = <Args as clap::FromArgMatches>::from_arg_matches(&matches).unwrap();
-        let [integer, subpixel] = keypoint_errors(&opts, &args).unwrap();
+        let [integer, subpixel] = keypoint_errors(&SyntheticSequence::new(&opts).unwrap(), &args).unwrap();
         assert_eq!((integer.pairs, subpixel.pairs), (10, 10));
         assert!(integer.inliers > 2000 && subpixel.inliers > 2000, "{integer:?} {subpixel:?}");
         assert!(subpixel.median_px < 0.6 * integer.median_px, "{subpixel:?} vs {integer:?}");

@@ -251,11 +251,19 @@ impl TrainSoa {
 /// Lanes of the per-lane two-smallest reduction.
 const LANES: usize = 8;
 
-/// Vectorisable kernel: for each query, all distances packed with the train
-/// index (`(d << 32) | j`) in one pass, the reverse minima in a second pass,
-/// and the two smallest keys by a per-lane reduction. Compiled for AVX-512
-/// (VPOPCNTQ) or AVX2 (LLVM's shuffle-based vector popcount) by the
-/// wrappers below.
+/// Train rows per tile of [`soa_kernel`]: a tile's words (4 KB), its
+/// reverse minima and the packed distances of one query against it stay in
+/// the L1 cache while every query of the task passes over them. Whole train
+/// sets per query streamed those from L2 at Strecha's 8,000 keypoints;
+/// tiles of 256 rows and more measured slower (docs/benchmarks.md).
+const TRAIN_TILE: usize = 128;
+
+/// Vectorisable kernel: the train rows in tiles of [`TRAIN_TILE`]; for each
+/// query and tile, all distances packed with the train index (`(d << 32) |
+/// j`) in one pass, the tile's reverse minima in a second pass, and the
+/// query's two smallest keys by a per-lane reduction carried across tiles.
+/// Compiled for AVX-512 (VPOPCNTQ) or AVX2 (LLVM's shuffle-based vector
+/// popcount) by the wrappers below.
 #[inline(always)]
 fn soa_kernel<const TWO: bool>(
     q: &[[u64; 4]],
@@ -266,41 +274,60 @@ fn soa_kernel<const TWO: bool>(
     rev2: &mut [u64],
 ) {
     let n = t.w[0].len();
-    let [w0, w1, w2, w3] = [&t.w[0][..n], &t.w[1][..n], &t.w[2][..n], &t.w[3][..n]];
-    let rev = &mut rev[..n];
-    let rev2 = if TWO { &mut rev2[..n] } else { &mut rev2[..0] };
-    let mut keys = vec![0u64; n];
-    for (k, (qd, b)) in q.iter().zip(best.iter_mut()).enumerate() {
-        let qi = (first + k) as u64;
-        for j in 0..n {
-            let d = (qd[0] ^ w0[j]).count_ones()
-                + (qd[1] ^ w1[j]).count_ones()
-                + (qd[2] ^ w2[j]).count_ones()
-                + (qd[3] ^ w3[j]).count_ones();
-            keys[j] = ((d as u64) << 32) | j as u64;
-        }
-        if TWO {
-            for ((r1, r2), &key) in rev.iter_mut().zip(rev2.iter_mut()).zip(&keys) {
-                push_two(r1, r2, (key & !0xffff_ffff) | qi);
+    let mut keys = [0u64; TRAIN_TILE];
+    // Each query's per-lane two smallest keys, and the keys of a last tile
+    // that is not a whole number of lanes.
+    let mut m1 = vec![[NONE; LANES]; q.len()];
+    let mut m2 = vec![[NONE; LANES]; q.len()];
+    let mut rest = vec![PackedBest::EMPTY; q.len()];
+    for start in (0..n).step_by(TRAIN_TILE) {
+        // One length for every slice of the tile, so that the loops below
+        // index without bounds checks and vectorise.
+        let len = (n - start).min(TRAIN_TILE);
+        let end = start + len;
+        let [w0, w1, w2, w3] = [&t.w[0][start..end], &t.w[1][start..end], &t.w[2][start..end], &t.w[3][start..end]];
+        let [w0, w1, w2, w3] = [&w0[..len], &w1[..len], &w2[..len], &w3[..len]];
+        let rev = &mut rev[start..end];
+        let rev2 = if TWO { &mut rev2[start..end] } else { &mut rev2[..0] };
+        let keys = &mut keys[..len];
+        for (k, qd) in q.iter().enumerate() {
+            let qi = (first + k) as u64;
+            for j in 0..len {
+                let d = (qd[0] ^ w0[j]).count_ones()
+                    + (qd[1] ^ w1[j]).count_ones()
+                    + (qd[2] ^ w2[j]).count_ones()
+                    + (qd[3] ^ w3[j]).count_ones();
+                keys[j] = ((d as u64) << 32) | (start + j) as u64;
             }
-        } else {
-            for (r, &key) in rev.iter_mut().zip(&keys) {
-                *r = (*r).min((key & !0xffff_ffff) | qi);
+            if TWO {
+                for ((r1, r2), &key) in rev.iter_mut().zip(rev2.iter_mut()).zip(keys.iter()) {
+                    push_two(r1, r2, (key & !0xffff_ffff) | qi);
+                }
+            } else {
+                for (r, &key) in rev.iter_mut().zip(keys.iter()) {
+                    *r = (*r).min((key & !0xffff_ffff) | qi);
+                }
+            }
+            // Local copies, so that the lanes stay in registers.
+            let (mut a, mut b) = (m1[k], m2[k]);
+            let mut chunks = keys.chunks_exact(LANES);
+            for c in &mut chunks {
+                for l in 0..LANES {
+                    let v = c[l];
+                    let hi = a[l].max(v);
+                    a[l] = a[l].min(v);
+                    b[l] = b[l].min(hi);
+                }
+            }
+            (m1[k], m2[k]) = (a, b);
+            for &v in chunks.remainder() {
+                rest[k].push(v);
             }
         }
-        let mut m1 = [NONE; LANES];
-        let mut m2 = [NONE; LANES];
-        let mut chunks = keys.chunks_exact(LANES);
-        for c in &mut chunks {
-            for l in 0..LANES {
-                let v = c[l];
-                let hi = m1[l].max(v);
-                m1[l] = m1[l].min(v);
-                m2[l] = m2[l].min(hi);
-            }
-        }
-        let mut top = PackedBest::EMPTY;
-        for v in m1.into_iter().chain(m2).chain(chunks.remainder().iter().copied()) {
+    }
+    for (k, b) in best.iter_mut().enumerate().take(q.len()) {
+        let mut top = rest[k];
+        for v in m1[k].into_iter().chain(m2[k]) {
             top.push(v);
         }
         if top.first != NONE {
@@ -883,7 +910,8 @@ mod tests {
                     let want = naive_match(&query, &train, &o);
                     assert!(!want.is_empty());
                     for kernel in Kernel::available() {
-                        // Also a train set that is not a multiple of the lanes.
+                        // 150 train rows span two tiles of the vectorised
+                        // kernel; 147 also leave a part of the lanes.
                         let got = m.match_binary_with(&query, &train, kernel);
                         assert_eq!(got, want, "{o:?} {kernel:?}");
                         let got = m.match_binary_with(&query, &train[..147], kernel);

@@ -49,7 +49,7 @@ pub use p3p::{estimate_p3p, estimate_p3p_grunert};
 // Robust pipelines.
 pub use absolute_pose::{
     AbsolutePoseOptions, AbsolutePoseReport, PoseRefineOptions, PoseRefineSummary, RobustLoss, estimate_absolute_pose,
-    refine_absolute_pose,
+    estimate_absolute_pose_guided, refine_absolute_pose,
 };
 pub use relative_pose::{
     EssentialEstimator, FundamentalEstimator, HomographyEstimator, RelativePoseOptions, RelativePoseRefineOptions,

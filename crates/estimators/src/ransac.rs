@@ -41,6 +41,16 @@ pub trait Estimator {
     /// default does nothing, which disables local optimisation.
     fn estimate_nonminimal(&self, _inliers: &[usize], _current: &Self::Model, _models: &mut Vec<Self::Model>) {}
 
+    /// The indices minimal samples are drawn from (distinct, each below
+    /// `num_data()`), when some data are known to be likelier inliers than
+    /// the rest: guided sampling, the idea behind PROSAC (Chum & Matas,
+    /// CVPR 2005) without its progressive schedule. Every datum still
+    /// counts towards the support, and the adaptive termination follows the
+    /// inlier ratio within the pool. `None` (the default): every datum.
+    fn sample_pool(&self) -> Option<&[usize]> {
+        None
+    }
+
     /// Writes the **squared** residual of every data point into `out`
     /// (`out.len() == num_data()`). Non-finite values count as outliers.
     fn squared_residuals(&self, model: &Self::Model, out: &mut [f64]);
@@ -281,7 +291,25 @@ pub fn ransac<E: Estimator>(est: &E, opts: &RansacOptions) -> Result<RansacRepor
     }
     let max_sq = opts.max_error * opts.max_error;
     let mut rng = SplitMix64::new(opts.seed);
-    let mut perm: Vec<usize> = (0..n).collect();
+    let pool = est.sample_pool();
+    let mut perm: Vec<usize> = match pool {
+        None => (0..n).collect(),
+        Some(pool) => {
+            let mut seen = vec![false; n];
+            for &i in pool {
+                if i >= n || std::mem::replace(&mut seen[i], true) {
+                    return Err(EstimatorError::InvalidOptions(format!(
+                        "{problem}: sample pool index {i} repeated or not below {n} data"
+                    )));
+                }
+            }
+            if pool.len() < s {
+                return Err(EstimatorError::TooFewPoints { problem, needed: s, got: pool.len() });
+            }
+            pool.to_vec()
+        }
+    };
+    let m = perm.len();
     let mut sample = vec![0usize; s];
     let mut models: Vec<E::Model> = Vec::new();
     let mut lo_models: Vec<E::Model> = Vec::new();
@@ -301,7 +329,7 @@ pub fn ransac<E: Estimator>(est: &E, opts: &RansacOptions) -> Result<RansacRepor
         // Partial Fisher-Yates: the first `s` entries of `perm` become a
         // uniform sample of distinct indices; `perm` stays a permutation.
         for k in 0..s {
-            let j = k + rng.below(n - k);
+            let j = k + rng.below(m - k);
             perm.swap(k, j);
             sample[k] = perm[k];
         }
@@ -341,7 +369,13 @@ pub fn ransac<E: Estimator>(est: &E, opts: &RansacOptions) -> Result<RansacRepor
                     num_lo_improvements += 1;
                 }
             }
-            let ratio = cur.support.num_inliers as f64 / n as f64;
+            let ratio = match pool {
+                None => cur.support.num_inliers as f64 / n as f64,
+                Some(pool) => {
+                    est.squared_residuals(&cur.model, &mut buf);
+                    pool.iter().filter(|&&i| buf[i] <= max_sq).count() as f64 / m as f64
+                }
+            };
             let needed = required_trials(ratio, s, opts.confidence, opts.dyn_trials_multiplier);
             max_trials = needed.max(opts.min_trials).min(cap);
             best = Some(cur);

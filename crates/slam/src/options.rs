@@ -601,6 +601,11 @@ pub struct RefineOptions {
     /// A frame between keyframes is localised from its matches to them, a third to a half of the map points it sees; the refinement projects the other points of the keyframes that share its matches and aligns their templates where they land, so its pose rests on every point it sees (found as direct methods track). `frames`: the frames between keyframes; the synthetic room's ATE falls by 45 %, the Strecha sets gain 1-2 %, TUM and KITTI are level. `all` (default): the keyframes too, before the final bundle adjustment, whose tracks get longer; the synthetic rooms then end under COLMAP's error and the Strecha sets near it, TUM and KITTI level. A track found where the alignment predicts its position loosely (over a quarter pixel) is left out: all of them made KITTI odometry 30 % worse. A frame whose own matches mostly fail to align (blur, rolling shutter) is not searched (docs/benchmarks.md, "The local map searched in every frame", "Found tracks gated by their alignment's precision").
     #[cfg_attr(feature = "cli", arg(long, value_name = "WHERE", default_value_t = RefineOptions::default().search_local_map))]
     pub search_local_map: LocalMapSearch,
+    /// Align again, within their pyramid level's scale, the keyframe observations whose alignment failed.
+    ///
+    /// A keypoint found at a coarse level of the ORB pyramid sits on that level's pixel grid, up to 1.2^level pixels off, so the surface point its track's template shows can lie beyond the 2-pixel search; such observations kept their keypoints and carried 40 % of the synthetic room's squared error. Searched again within 2 x 1.2^level pixels, one is kept where the alignment predicts its position within a quarter pixel, as the tracks found by projection (`--search-local-map`): the synthetic rooms' ATE falls by 8-10 %, the Strecha sets, TUM and KITTI stay within 1 % (docs/benchmarks.md, "Failed alignments searched again").
+    #[cfg_attr(feature = "cli", arg(long, value_name = "BOOL", default_value_t = RefineOptions::default().realign_coarse, action = clap::ArgAction::Set))]
+    pub realign_coarse: bool,
     /// Cauchy loss in the final BAs, at the map's median reprojection error.
     ///
     /// The filter keeps observations up to 4 px off, and under a squared loss the few mismatches among them move the poses along the map's weak directions; a Cauchy loss at the map's own error level lets them count less (docs/benchmarks.md, "Observation refinement"). Without it, the final bundle adjustments use the squared loss, as COLMAP's global BA. Off by default: the mismatches it held down were mostly two-view tracks', which the final BAs now leave out (`--final-ba-min-track`); alone it no longer helps, and after `--refine-observations` it helps the synthetic keyframes only (docs/benchmarks.md, "Two-view tracks out of the final BA").
@@ -647,6 +652,7 @@ impl Default for RefineOptions {
             refine_all_frames: false,
             refine_observations: true,
             search_local_map: LocalMapSearch::All,
+            realign_coarse: true,
             robust_final_ba: false,
             final_ba_min_track: 3,
             match_overlapping: 0,

@@ -26,9 +26,9 @@
 //! skipped with a warning and its observations keep their keypoints.
 
 use super::localize::{FrameInliers, Localization};
-use super::state::Mapper;
+use super::state::{Mapper, ORB_LEVEL_SCALE};
 use crate::error::SlamError;
-use crate::frame::undistort;
+use crate::frame::{FrameData, undistort};
 use crate::options::{OVERLAP_MAX_VIEW_ANGLE_DEG, SlamOptions};
 use crate::patch::{Alignment, GradientImage, PATCH_HALF, SmoothImage, Template};
 use crate::timing::{Stage, StageTimings};
@@ -188,13 +188,27 @@ impl Mapper {
         pose: &Rigid3,
         list: &[(T, Point3DId, Vec2)],
     ) -> Vec<Option<(T, Vec2, Alignment)>> {
+        self.align_in_image_within(camera, tracks, image, pose, list, MAX_SHIFT_PX)
+    }
+
+    /// [`Self::align_in_image`] with the search bounded by `max_shift`
+    /// pixels.
+    fn align_in_image_within<T: Copy + Send + Sync>(
+        &self,
+        camera: &Camera,
+        tracks: &TrackTemplates,
+        image: &SmoothImage,
+        pose: &Rigid3,
+        list: &[(T, Point3DId, Vec2)],
+        max_shift: f64,
+    ) -> Vec<Option<(T, Vec2, Alignment)>> {
         let rec = &self.rec;
         list.par_iter()
             .map(|(tag, pid, xy)| {
                 let (template, ref_xy) = tracks.templates.get(pid)?;
                 let ref_pose = rec.image(*tracks.reference_of.get(pid)?)?.cam_from_world;
                 let (anchor, warp) = plane_warp(camera, &ref_pose, ref_xy, pose, &rec.point3d(*pid)?.xyz)?;
-                let a = image.align(template, &(xy + anchor), &warp, MAX_SHIFT_PX)?;
+                let a = image.align(template, &(xy + anchor), &warp, max_shift)?;
                 (a.zncc >= MIN_ZNCC).then(|| (*tag, xy + a.shift, a))
             })
             .collect()
@@ -279,13 +293,22 @@ impl Mapper {
             let Some((image_id, list)) = targets.get(&index) else { return };
             let Some(img) = self.rec.image(*image_id) else { return };
             let pose = img.cam_from_world;
-            let list: Vec<(u32, Point3DId, Vec2)> = list
+            let list: Vec<KeyframeTarget> = list
                 .iter()
                 .filter(|t| tracks.templates.contains_key(&t.point))
                 .map(|t| (t.point2d, t.point, t.xy))
                 .collect();
             let smooth = SmoothImage::new(image);
-            let found = self.align_in_image(&camera, &tracks, &smooth, &pose, &list);
+            let mut found = self.align_in_image(&camera, &tracks, &smooth, &pose, &list);
+            if let Some(&(s, _)) = slot.get(image_id).filter(|_| opts.refine.realign_coarse) {
+                for (octave, (places, items)) in coarse_failures(&list, &found, &self.keyframes[s].data) {
+                    let radius = MAX_SHIFT_PX * f64::from(ORB_LEVEL_SCALE).powi(i32::from(octave));
+                    let again = self.align_in_image_within(&camera, &tracks, &smooth, &pose, &items, radius);
+                    for (i, a) in places.into_iter().zip(again) {
+                        found[i] = a.filter(|(_, _, a)| a.sigma_px <= MAX_FOUND_SIGMA_PX);
+                    }
+                }
+            }
             if opts.refine.search_local_map.keyframes() {
                 let observed: Vec<Point3DId> = img.points2d.iter().filter_map(|p| p.point3d_id).collect();
                 let new = local.search(&camera, &smooth, &pose, &observed, &found);
@@ -558,6 +581,37 @@ impl<'m> LocalTemplates<'m> {
             })
             .collect()
     }
+}
+
+/// A keyframe observation to align: its index among the keyframe's
+/// observations, its track and its pixel.
+type KeyframeTarget = (u32, Point3DId, Vec2);
+
+/// The observations of `list` whose alignment failed (`None` in `found`)
+/// and whose keypoint (in `data`) was detected above the pyramid's finest
+/// level, by octave, each with its place in `list`: `--realign-coarse`
+/// searches them again within [`MAX_SHIFT_PX`] times the octave's scale
+/// ([`ORB_LEVEL_SCALE`] to the octave) and keeps those whose alignment
+/// predicts at most [`MAX_FOUND_SIGMA_PX`]. A keypoint detected at a
+/// coarse level sits on that level's pixel grid, so the surface point its
+/// track's template shows can lie beyond the search; a wider search can
+/// also slide onto another structure, which the precision gate keeps out
+/// (as for the tracks found by projection).
+fn coarse_failures<A>(
+    list: &[KeyframeTarget],
+    found: &[Option<A>],
+    data: &FrameData,
+) -> BTreeMap<u8, (Vec<usize>, Vec<KeyframeTarget>)> {
+    let mut by_octave: BTreeMap<u8, (Vec<usize>, Vec<KeyframeTarget>)> = BTreeMap::new();
+    for (i, (item, f)) in list.iter().zip(found).enumerate() {
+        let Some(kp) = data.features.keypoints.get(item.0 as usize) else { continue };
+        if f.is_none() && kp.octave > 0 {
+            let entry = by_octave.entry(kp.octave).or_default();
+            entry.0.push(i);
+            entry.1.push(*item);
+        }
+    }
+    by_octave
 }
 
 /// Share of a frame's own observations (a non-keyframe's PnP inliers) that

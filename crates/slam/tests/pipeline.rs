@@ -13,6 +13,14 @@ fn small_synth(frames: usize, seed: u64) -> SynthOptions {
     SynthOptions { frames, width: 320, height: 240, focal: 262.5, seed, ..SynthOptions::default() }
 }
 
+/// The default synthetic room with `frames` frames, and its frames.
+fn room(frames: usize) -> (SyntheticSequence, Vec<Frame>) {
+    let opts = SynthOptions { frames, ..SynthOptions::default() };
+    let seq = SyntheticSequence::new(&opts).expect("sequence");
+    let frames = frames_of(&seq, opts.frames, opts.fps);
+    (seq, frames)
+}
+
 fn frames_of(seq: &SyntheticSequence, n: usize, fps: f64) -> Vec<Frame> {
     (0..n)
         .map(|i| Frame {
@@ -818,9 +826,7 @@ fn run_with_images(
 /// observations, then the robust final BA on them.
 #[test]
 fn each_final_refinement_stage_makes_the_synthetic_map_more_accurate() {
-    let opts = SynthOptions { frames: 100, ..SynthOptions::default() };
-    let seq = SyntheticSequence::new(&opts).expect("sequence");
-    let frames = frames_of(&seq, opts.frames, opts.fps);
+    let (seq, frames) = room(100);
     // The camera as given: an estimated radial term brings the robust loss
     // of refined intrinsics into the global BAs, which would hide the
     // stages' own effect.
@@ -879,9 +885,7 @@ fn each_final_refinement_stage_makes_the_synthetic_map_more_accurate() {
 /// synthetic room more accurate with the default options.
 #[test]
 fn failed_alignments_of_coarse_keypoints_searched_again_make_the_room_more_accurate() {
-    let opts = SynthOptions { frames: 100, ..SynthOptions::default() };
-    let seq = SyntheticSequence::new(&opts).expect("sequence");
-    let frames = frames_of(&seq, opts.frames, opts.fps);
+    let (seq, frames) = room(100);
     let mut kept = SlamOptions::default();
     kept.refine.realign_coarse = false;
     let (_, all_kept, kf_kept) = run_with_images(&seq, &frames, kept, Vec::new());
@@ -916,9 +920,7 @@ fn the_tracks_found_in_the_keyframes_keep_the_drive_as_accurate() {
 
 #[test]
 fn a_frame_that_cannot_be_read_again_keeps_its_keypoints_and_the_run_finishes() {
-    let opts = SynthOptions { frames: 60, ..SynthOptions::default() };
-    let seq = SyntheticSequence::new(&opts).expect("sequence");
-    let frames = frames_of(&seq, opts.frames, opts.fps);
+    let (seq, frames) = room(60);
     // Every frame unreadable but the first few: the keyframes among them
     // keep their keypoints, the rest are refined.
     let mut on = SlamOptions::default();

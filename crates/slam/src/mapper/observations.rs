@@ -178,22 +178,10 @@ impl Mapper {
     }
 
     /// Aligns observations `(tag, point, pixel)` in one image taken from
-    /// `pose` to their tracks' templates: the aligned pixel and the
-    /// alignment for each that was found and passed the checks.
+    /// `pose` to their tracks' templates, each search bounded by
+    /// `max_shift` pixels: the aligned pixel and the alignment for each that
+    /// was found and passed the checks.
     fn align_in_image<T: Copy + Send + Sync>(
-        &self,
-        camera: &Camera,
-        tracks: &TrackTemplates,
-        image: &SmoothImage,
-        pose: &Rigid3,
-        list: &[(T, Point3DId, Vec2)],
-    ) -> Vec<Option<(T, Vec2, Alignment)>> {
-        self.align_in_image_within(camera, tracks, image, pose, list, MAX_SHIFT_PX)
-    }
-
-    /// [`Self::align_in_image`] with the search bounded by `max_shift`
-    /// pixels.
-    fn align_in_image_within<T: Copy + Send + Sync>(
         &self,
         camera: &Camera,
         tracks: &TrackTemplates,
@@ -299,11 +287,11 @@ impl Mapper {
                 .map(|t| (t.point2d, t.point, t.xy))
                 .collect();
             let smooth = SmoothImage::new(image);
-            let mut found = self.align_in_image(&camera, &tracks, &smooth, &pose, &list);
+            let mut found = self.align_in_image(&camera, &tracks, &smooth, &pose, &list, MAX_SHIFT_PX);
             if let Some(&(s, _)) = slot.get(image_id).filter(|_| opts.refine.realign_coarse) {
                 for (octave, (places, items)) in coarse_failures(&list, &found, &self.keyframes[s].data) {
                     let radius = MAX_SHIFT_PX * f64::from(ORB_LEVEL_SCALE).powi(i32::from(octave));
-                    let again = self.align_in_image_within(&camera, &tracks, &smooth, &pose, &items, radius);
+                    let again = self.align_in_image(&camera, &tracks, &smooth, &pose, &items, radius);
                     for (i, a) in places.into_iter().zip(again) {
                         found[i] = a.filter(|(_, _, a)| a.sigma_px <= MAX_FOUND_SIGMA_PX);
                     }
@@ -412,7 +400,7 @@ impl Mapper {
                     .map(|(k, (n, pid))| (k, *pid, camera.img_from_normalized(n)))
                     .collect();
                 let smooth = SmoothImage::new(&image.to_gray());
-                let found = self.align_in_image(camera, tracks, &smooth, &pose, &list);
+                let found = self.align_in_image(camera, tracks, &smooth, &pose, &list, MAX_SHIFT_PX);
                 let new = if opts.refine.search_local_map.frames() {
                     let observed: Vec<Point3DId> = inliers.iter().map(|(_, pid)| *pid).collect();
                     local.search(camera, &smooth, &pose, &observed, &found)
@@ -526,7 +514,7 @@ impl<'m> LocalTemplates<'m> {
         }
         let list: Vec<(Point3DId, Point3DId, Vec2)> =
             self.visible(camera, pose, observed).into_iter().map(|(pid, xy)| (pid, pid, xy)).collect();
-        let mut found = self.map.align_in_image(camera, self.tracks, image, pose, &list);
+        let mut found = self.map.align_in_image(camera, self.tracks, image, pose, &list, MAX_SHIFT_PX);
         for f in &mut found {
             if f.as_ref().is_some_and(|(_, _, a)| a.sigma_px > MAX_FOUND_SIGMA_PX) {
                 *f = None;

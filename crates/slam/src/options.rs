@@ -601,7 +601,7 @@ pub struct RefineOptions {
     /// A frame between keyframes is localised from its matches to them, a third to a half of the map points it sees; the refinement projects the other points of the keyframes that share its matches and aligns their templates where they land, so its pose rests on every point it sees (found as direct methods track). `frames`: the frames between keyframes; the synthetic room's ATE falls by 45 %, the Strecha sets gain 1-2 %, TUM and KITTI are level. `all` (default): the keyframes too, before the final bundle adjustment, whose tracks get longer; the synthetic rooms then end under COLMAP's error and the Strecha sets near it, TUM and KITTI level. A track found where the alignment predicts its position loosely (over a quarter pixel) is left out: all of them made KITTI odometry 30 % worse. A frame whose own matches mostly fail to align (blur, rolling shutter) is not searched (docs/benchmarks.md, "The local map searched in every frame", "Found tracks gated by their alignment's precision").
     #[cfg_attr(feature = "cli", arg(long, value_name = "WHERE", default_value_t = RefineOptions::default().search_local_map))]
     pub search_local_map: LocalMapSearch,
-    /// Align again, within their pyramid level's scale, the keyframe observations whose alignment failed.
+    /// Search failed alignments again within their keypoint's pyramid scale.
     ///
     /// A keypoint found at a coarse level of the ORB pyramid sits on that level's pixel grid, up to 1.2^level pixels off, so the surface point its track's template shows can lie beyond the 2-pixel search; such observations kept their keypoints and carried 40 % of the synthetic room's squared error. Searched again within 2 x 1.2^level pixels, one is kept where the alignment predicts its position within a quarter pixel, as the tracks found by projection (`--search-local-map`): the synthetic rooms' ATE falls by 8-10 %, the Strecha sets, TUM and KITTI stay within 1 % (docs/benchmarks.md, "Failed alignments searched again").
     #[cfg_attr(feature = "cli", arg(long, value_name = "BOOL", default_value_t = RefineOptions::default().realign_coarse, action = clap::ArgAction::Set))]
@@ -628,6 +628,11 @@ pub struct RefineOptions {
     /// `auto` estimates the readout from the mapped sequence and reports it.
     #[cfg_attr(feature = "cli", arg(long, value_name = "SECONDS|auto", default_value_t = RefineOptions::default().rolling_shutter))]
     pub rolling_shutter: RollingShutter,
+    /// Rounds of compensation with a readout given to `--rolling-shutter` (at least 1).
+    ///
+    /// Each round moves the observations from where they were measured with the frames' angular velocities, then adjusts the map and localises every frame again. The first round takes the velocities from the uncompensated poses, which the rolling shutter itself bends; the next takes them from the poses the last round compensated. A second round takes the synthetic rolling-shutter room from 3.6 to 2.2 mm and TUM fr1/rpy with its 1/30 s readout 1-5 % further, at one more global refinement and localisation; a third adds under 2 % (docs/benchmarks.md, "A second round of rolling-shutter compensation"). `auto` iterates its own estimate and compensation.
+    #[cfg_attr(feature = "cli", arg(long, value_name = "N", default_value_t = RefineOptions::default().rolling_shutter_rounds))]
+    pub rolling_shutter_rounds: usize,
     /// MiB of frame records kept in memory; older ones spill to a file beside the output (0: all).
     ///
     /// Every non-keyframe keeps its matches to keyframes (about 32 KiB at 640x480) until it is localised at the end; beyond this budget they are written to `.OUT.scratch-*` beside the output folder and read back then. The file is removed when the run ends, whatever the outcome.
@@ -657,6 +662,7 @@ impl Default for RefineOptions {
             final_ba_min_track: 3,
             match_overlapping: 0,
             rolling_shutter: RollingShutter::Seconds(0.0),
+            rolling_shutter_rounds: 2,
             record_memory: RECORD_MEMORY_MIB,
         }
     }
@@ -863,6 +869,8 @@ impl SlamOptions {
         check(m.local_ba_images >= 2, "local-ba-images", m.local_ba_images, "must be at least 2")?;
         let g = m.global_ba_growth;
         check(g > 1.0 && g.is_finite(), "global-ba-growth", g, "must be greater than 1")?;
+        let rounds = r.rolling_shutter_rounds;
+        check(rounds >= 1, "rolling-shutter-rounds", rounds, "must be at least 1")?;
         match r.rolling_shutter {
             RollingShutter::Auto => Ok(()),
             RollingShutter::Seconds(rs) => check(

@@ -761,6 +761,30 @@ fn rolling_shutter_auto_finds_the_readout_of_a_synthetic_camera() {
     }
 }
 
+#[test]
+fn a_second_round_of_compensation_makes_a_rolling_shutter_room_more_accurate() {
+    // The synthetic camera of the test above, its 30 ms readout given: the
+    // first round's angular velocities come from poses the rolling shutter
+    // bent, the second's from the poses the first compensated.
+    let synth = SynthOptions { readout: 0.03, jitter_rotation_deg: 5.0, ..small_synth(60, 3) };
+    let seq = SyntheticSequence::new(&synth).expect("sequence");
+    let frames = frames_of(&seq, synth.frames, synth.fps);
+    let gt = gt_trajectory(&seq, synth.frames, synth.fps);
+    let ate = |rounds: usize| {
+        let mut opts = SlamOptions::default();
+        opts.refine.rolling_shutter = colslam_slam::RollingShutter::Seconds(0.03);
+        opts.refine.rolling_shutter_rounds = rounds;
+        let r = run(&frames, seq.camera(), opts, EventSink::none());
+        assert_eq!(r.maps.len(), 1, "notes: {:?}", r.stats.notes);
+        assert_eq!(r.maps[0].poses.len(), synth.frames);
+        evaluate(&gt, &est_trajectory(&r), &EvalOptions::default()).expect("evaluate").ate_rmse
+    };
+    let (one, two) = (ate(1), ate(2));
+    eprintln!("rolling-shutter room, readout given: one round {one:.6} m, two {two:.6} m");
+    // Measured: 5.21 -> 4.68 mm.
+    assert!(two < 0.95 * one, "one round {one} m, two {two} m");
+}
+
 /// The frames kept in memory, read again by index for the refinements that
 /// look at the pixels; the `unreadable` ones fail as a lost file would.
 struct KeptFrames {

@@ -338,7 +338,15 @@ impl Mapper {
         timings: &mut StageTimings,
     ) -> Result<(Localization, f64), SlamError> {
         match opts.refine.rolling_shutter {
-            RollingShutter::Seconds(s) if s > 0.0 => Ok((self.compensate_rolling_shutter(first, s, opts, timings)?, s)),
+            RollingShutter::Seconds(s) if s > 0.0 => {
+                // Each round's velocities come from the poses the last one
+                // compensated (`--rolling-shutter-rounds`).
+                let mut loc = first;
+                for _ in 0..opts.refine.rolling_shutter_rounds {
+                    loc = self.compensate_rolling_shutter(loc, s, opts, timings)?;
+                }
+                Ok((loc, s))
+            }
             RollingShutter::Seconds(_) => Ok((first, 0.0)),
             RollingShutter::Auto => self.compensate_auto(first, opts, timings),
         }
@@ -386,8 +394,8 @@ impl Mapper {
     /// is refined globally (track completion, merging and filtering matter:
     /// corrected observations join tracks they did not fit before), then to
     /// [`crate::options::ROLLING_SHUTTER_FINAL_BA_TOLERANCE`], and every frame is localised again.
-    /// Re-estimating the velocities from the compensated poses and repeating
-    /// gave no better trajectory, at a global BA each (docs/history.md).
+    /// Called again with the localisation it returned, it takes the
+    /// velocities from the compensated poses (`--rolling-shutter-rounds`).
     /// Returns the new localisation, or `first` when nothing moved.
     pub fn compensate_rolling_shutter(
         &mut self,

@@ -462,8 +462,8 @@ mod tests {
     fn samples_from_a_pool_find_a_pose_whose_inliers_are_too_rare_for_uniform_samples() {
         // 1,500 correspondences with 4 % inliers (the outliers come first);
         // the pool holds 45 of the 60 inliers among 405 (11 %): a frame of
-        // a photo set that few keyframes see, its correspondences that two
-        // keyframes agree on as the pool.
+        // a photo set matched to many keyframes, the matches of the one
+        // that shares its view as the pool.
         let opts = AbsolutePoseOptions {
             ransac: RansacOptions { max_error: 4.0 / 500.0, confidence: 0.9999, ..RansacOptions::default() },
             ..AbsolutePoseOptions::default()

@@ -603,7 +603,7 @@ pub struct RefineOptions {
     pub search_local_map: LocalMapSearch,
     /// Search failed alignments again within their keypoint's pyramid scale.
     ///
-    /// A keypoint found at a coarse level of the ORB pyramid sits on that level's pixel grid, up to 1.2^level pixels off, so the surface point its track's template shows can lie beyond the 2-pixel search; such observations kept their keypoints and carried 40 % of the synthetic room's squared error. Searched again within 2 x 1.2^level pixels, one is kept where the alignment predicts its position within a quarter pixel, as the tracks found by projection (`--search-local-map`): the synthetic rooms' ATE falls by 8-10 %, the Strecha sets, TUM and KITTI stay within 1 % (docs/benchmarks.md, "Failed alignments searched again").
+    /// A keypoint found at a coarse level of the ORB pyramid sits on that level's pixel grid, up to 1.2^level pixels off, so the surface point its track's template shows can lie beyond the 2-pixel search; such observations kept their keypoints and carried 40 % of the synthetic room's squared error. Searched again within 2 x 1.2^level pixels, one is kept where the alignment predicts its position within a quarter pixel, as the tracks found by projection (`--search-local-map`): the synthetic rooms' ATE falls by 6-10 % (100 to 300 frames), the Strecha sets, TUM and KITTI stay within 1.3 % (docs/benchmarks.md, "Failed alignments searched again").
     #[cfg_attr(feature = "cli", arg(long, value_name = "BOOL", default_value_t = RefineOptions::default().realign_coarse, action = clap::ArgAction::Set))]
     pub realign_coarse: bool,
     /// Cauchy loss in the final BAs, at the map's median reprojection error.

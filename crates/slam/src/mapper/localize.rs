@@ -13,7 +13,7 @@ use colslam_geometry::{Vec2, Vec3};
 use colslam_scene::{Image, ImageId, Point3DId, TrackElement};
 use colslam_sfm::SfmError;
 use rayon::prelude::*;
-use std::collections::{HashMap, HashSet};
+use std::collections::{BTreeMap, HashMap, HashSet};
 
 /// A localised frame's PnP inliers: (normalised keypoint, 3D point).
 pub type FrameInliers = Vec<(Vec2, Point3DId)>;
@@ -28,6 +28,17 @@ pub struct Localization {
     /// Each localised frame's inliers, by frame index.
     pub inliers: HashMap<usize, FrameInliers>,
 }
+
+/// Keyframes whose correspondences a weakly localised frame's PnP samples
+/// from, one group at a time ([`Mapper::localize`]), the largest first.
+const GUIDED_POOLS: usize = 8;
+
+/// The inlier ratio the samples from one keyframe's correspondences are
+/// sized for: a keyframe that shares the frame's view holds a quarter or so
+/// of inliers among its matches (herzjesu's frame 13: 26 %), and the trial
+/// cap (about 3,400 trials at 0.9999 confidence) keeps a keyframe that does
+/// not from costing a full RANSAC.
+const GUIDED_MIN_POOL_RATIO: f64 = 0.2;
 
 /// Frames localised per batch: the spilled records of one batch are read
 /// back into memory together, so the batch bounds that memory while leaving
@@ -105,10 +116,8 @@ impl Mapper {
         let mut used_pt = HashSet::new();
         let (mut p2, mut p3): (Vec<Vec2>, Vec<Vec3>) = (Vec::new(), Vec::new());
         let mut pids = Vec::new();
-        // How many of the record's matches (to different keyframes) say
-        // that a frame keypoint sees a point.
-        let mut votes: HashMap<(u32, Point3DId), usize> = HashMap::new();
-        let mut keys = Vec::new();
+        // Each correspondence's place, by the keyframe whose match gave it.
+        let mut by_keyframe: BTreeMap<ImageId, Vec<usize>> = BTreeMap::new();
         for (k, o) in record.obs.iter().enumerate() {
             let Some(img) = self.rec.image(o.keyframe) else { continue };
             if !img.registered {
@@ -116,7 +125,6 @@ impl Mapper {
             }
             let Some(pid) = img.points2d.get(o.keyframe_kp as usize).and_then(|p| p.point3d_id) else { continue };
             let Some(p) = self.rec.point3d(pid) else { continue };
-            *votes.entry((o.frame_kp, pid)).or_default() += 1;
             if used_kp.contains(&o.frame_kp) || used_pt.contains(&pid) {
                 continue;
             }
@@ -126,7 +134,7 @@ impl Mapper {
             p2.push(n);
             p3.push(p.xyz);
             pids.push(pid);
-            keys.push((o.frame_kp, pid));
+            by_keyframe.entry(o.keyframe).or_default().push(p2.len() - 1);
         }
         if p2.len() < opts.mapper.abs_pose_min_inliers {
             tracing::trace!("frame {}: not localised: {} 2D-3D correspondences", record.frame.index, p2.len());
@@ -135,47 +143,47 @@ impl Mapper {
         let pose_opts = opts.mapper.absolute_pose(focal, opts.seed ^ record.frame.index as u64);
         let plain = estimate_absolute_pose(&p2, &p3, &pose_opts);
         // Below the inlier ratio RANSAC's trial cap is sized for, whether a
-        // sample of inliers was drawn at all is chance (a frame of a photo
-        // set seen by few keyframes: 5 % of herzjesu's frame 13). The
-        // correspondences that matches to two keyframes or more agree on
-        // are likelier right (there, 11 %): samples drawn from them alone,
-        // support counted over all, and the pose with more inliers kept.
+        // sample of inliers was drawn at all is chance: a frame of a photo
+        // set matched to many keyframes, few of which see what it sees
+        // (herzjesu's frame 13: 68 inliers among 1,353 correspondences, 64
+        // of them among the 246 of one keyframe's matches). Then samples
+        // are drawn from one keyframe's correspondences at a time (the
+        // largest groups first), support counted over all of them, and the
+        // pose with the most inliers is kept.
         let weak = plain.as_ref().map_or(true, |p| p.inlier_ratio < pose_opts.ransac.min_inlier_ratio);
-        let pool: Vec<usize> = if weak {
-            keys.iter().enumerate().filter(|(_, key)| votes.get(key).is_some_and(|&v| v >= 2)).map(|(i, _)| i).collect()
-        } else {
-            Vec::new()
-        };
-        let guided = (pool.len() >= opts.mapper.abs_pose_min_inliers && pool.len() < p2.len())
-            .then(|| estimate_absolute_pose_guided(&p2, &p3, &pool, &pose_opts));
-        if let Some(g) = &guided {
-            tracing::trace!(
-                "frame {}: samples from the {} of {} correspondences that keyframes agree on: {} inliers (uniform: {})",
-                record.frame.index,
-                pool.len(),
-                p2.len(),
-                g.as_ref().map_or(0, |r| r.num_inliers),
-                plain.as_ref().map_or(0, |r| r.num_inliers)
-            );
-        }
-        let pose = match (plain, guided) {
-            (Ok(a), Some(Ok(b))) => {
-                if b.num_inliers > a.num_inliers {
-                    b
-                } else {
-                    a
+        let reason = plain.as_ref().err().map(ToString::to_string);
+        let mut best = plain.ok();
+        if weak {
+            let mut pools: Vec<Vec<usize>> = by_keyframe
+                .into_values()
+                .filter(|g| g.len() >= opts.mapper.abs_pose_min_inliers && g.len() < p2.len())
+                .collect();
+            pools.sort_by_key(|g| std::cmp::Reverse(g.len()));
+            pools.truncate(GUIDED_POOLS);
+            let mut guided_opts = pose_opts.clone();
+            guided_opts.ransac.min_inlier_ratio = GUIDED_MIN_POOL_RATIO;
+            for pool in &pools {
+                let Ok(g) = estimate_absolute_pose_guided(&p2, &p3, pool, &guided_opts) else { continue };
+                tracing::trace!(
+                    "frame {}: samples from one keyframe's {} of {} correspondences: {} inliers",
+                    record.frame.index,
+                    pool.len(),
+                    p2.len(),
+                    g.num_inliers
+                );
+                if best.as_ref().is_none_or(|b| g.num_inliers > b.num_inliers) {
+                    best = Some(g);
                 }
             }
-            (Ok(a), _) => a,
-            (Err(_), Some(Ok(b))) => b,
-            (Err(e), _) => {
-                tracing::trace!(
-                    "frame {}: not localised from {} 2D-3D correspondences: {e}",
-                    record.frame.index,
-                    p2.len()
-                );
-                return None;
-            }
+        }
+        let Some(pose) = best else {
+            tracing::trace!(
+                "frame {}: not localised from {} 2D-3D correspondences: {}",
+                record.frame.index,
+                p2.len(),
+                reason.unwrap_or_default()
+            );
+            return None;
         };
         let inliers: FrameInliers =
             p2.iter().zip(&pids).zip(&pose.inlier_mask).filter(|(_, m)| **m).map(|((n, pid), _)| (*n, *pid)).collect();

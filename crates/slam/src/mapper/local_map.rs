@@ -13,7 +13,7 @@
 //! keyframes ties all their scales together.
 
 use super::register::Correspondences;
-use super::state::{Mapper, ORB_LEVEL_SCALE};
+use super::state::{Mapper, ORB_LEVEL_SCALE, level_scale};
 use crate::frame::FrameData;
 use crate::options::{
     LOCAL_MAP_MAX_HAMMING, LOCAL_MAP_MIN_VIEW_COS, LOCAL_MAP_RADIUS_PX, LOCAL_MAP_RATIO, SlamOptions,
@@ -234,7 +234,7 @@ impl Mapper {
         let level = predicted_level(ref_level, ref_dist, dist, max_level)?;
         // A point seen head-on is predicted better than one seen askew.
         let base = if view_cos > 0.998 { 0.625 * LOCAL_MAP_RADIUS_PX } else { LOCAL_MAP_RADIUS_PX };
-        let radius = (base * f64::from(ORB_LEVEL_SCALE).powi(i32::from(level))) as f32;
+        let radius = (base * level_scale(level)) as f32;
         Some(Projected { id: pid, x, y, level, radius, descriptor })
     }
 }
@@ -259,8 +259,8 @@ fn medoid(obs: &[([u64; 4], u8, f64)]) -> usize {
 /// distance leaves the range the pyramid covers.
 fn predicted_level(ref_level: u8, ref_dist: f64, dist: f64, max_level: u8) -> Option<u8> {
     let s = f64::from(ORB_LEVEL_SCALE);
-    let max_dist = ref_dist * s.powi(i32::from(ref_level));
-    let min_dist = max_dist / s.powi(i32::from(max_level));
+    let max_dist = ref_dist * level_scale(ref_level);
+    let min_dist = max_dist / level_scale(max_level);
     if !(dist >= 0.8 * min_dist && dist <= 1.2 * max_dist) {
         return None;
     }

@@ -26,7 +26,7 @@
 //! skipped with a warning and its observations keep their keypoints.
 
 use super::localize::{FrameInliers, Localization};
-use super::state::{Mapper, ORB_LEVEL_SCALE};
+use super::state::{Mapper, level_scale};
 use crate::error::SlamError;
 use crate::frame::{FrameData, undistort};
 use crate::options::{OVERLAP_MAX_VIEW_ANGLE_DEG, SlamOptions};
@@ -290,7 +290,7 @@ impl Mapper {
             let mut found = self.align_in_image(&camera, &tracks, &smooth, &pose, &list, MAX_SHIFT_PX);
             if let Some(&(s, _)) = slot.get(image_id).filter(|_| opts.refine.realign_coarse) {
                 for (octave, (places, items)) in coarse_failures(&list, &found, &self.keyframes[s].data) {
-                    let radius = MAX_SHIFT_PX * f64::from(ORB_LEVEL_SCALE).powi(i32::from(octave));
+                    let radius = MAX_SHIFT_PX * level_scale(octave);
                     let again = self.align_in_image(&camera, &tracks, &smooth, &pose, &items, radius);
                     for (i, a) in places.into_iter().zip(again) {
                         found[i] = a.filter(|(_, _, a)| a.sigma_px <= MAX_FOUND_SIGMA_PX);
@@ -579,7 +579,7 @@ type KeyframeTarget = (u32, Point3DId, Vec2);
 /// and whose keypoint (in `data`) was detected above the pyramid's finest
 /// level, by octave, each with its place in `list`: `--realign-coarse`
 /// searches them again within [`MAX_SHIFT_PX`] times the octave's scale
-/// ([`ORB_LEVEL_SCALE`] to the octave) and keeps those whose alignment
+/// ([`level_scale`]) and keeps those whose alignment
 /// predicts at most [`MAX_FOUND_SIGMA_PX`]. A keypoint detected at a
 /// coarse level sits on that level's pixel grid, so the surface point its
 /// track's template shows can lie beyond the search; a wider search can

@@ -241,6 +241,12 @@ fn trial_ba(
 /// located to about `ORB_LEVEL_SCALE^o` pixels (ORB-SLAM's level sigma).
 pub const ORB_LEVEL_SCALE: f32 = 1.2;
 
+/// [`ORB_LEVEL_SCALE`] to the power `octave`: the size in full-resolution
+/// pixels of a pixel of that pyramid level.
+pub fn level_scale(octave: u8) -> f64 {
+    f64::from(ORB_LEVEL_SCALE).powi(i32::from(octave))
+}
+
 /// The standard deviation of each keypoint of a frame (by pyramid level).
 pub fn keypoint_sigmas(data: &FrameData) -> Vec<f32> {
     data.features.keypoints.iter().map(|k| ORB_LEVEL_SCALE.powi(i32::from(k.octave))).collect()

@@ -3,9 +3,10 @@
 //! guided variant that searches only near a predicted position.
 //!
 //! The binary brute force picks at run time the fastest kernel the CPU
-//! supports (AVX-512 VPOPCNTQ or AVX2 on a structure-of-arrays copy of the
-//! train set, else scalar POPCNT with 4 queries per train load); all give
-//! identical results (tested against a bit-by-bit reference). Cross-check
+//! supports (AVX-512 VPOPCNTQ on a structure-of-arrays copy of the train
+//! set, AVX2 byte lookups on a copy split into nibbles, else scalar POPCNT
+//! with 4 queries per train load); all give identical results (tested
+//! against a bit-by-bit reference). Cross-check
 //! comes from the same pass: every distance also updates the train row's
 //! best query, so mutual matching costs no second pass.
 //!
@@ -155,16 +156,6 @@ fn offer_rev(r: &mut u64, d: u32, qi: usize) {
     }
 }
 
-/// Inserts packed `v` into the two smallest `r1 <= r2` (packed values are
-/// distinct, the index being part of them); branch-free, so the loops over
-/// train rows vectorise.
-#[inline(always)]
-fn push_two(r1: &mut u64, r2: &mut u64, v: u64) {
-    let hi = (*r1).max(v);
-    *r1 = (*r1).min(v);
-    *r2 = (*r2).min(hi);
-}
-
 /// Offers query `qi` at distance `d` as one of the two nearest queries of a
 /// train row (`r1` the nearest, `r2` the second, packed).
 #[inline(always)]
@@ -236,20 +227,108 @@ fn brute_force_block<const TWO: bool>(
     }
 }
 
-/// Train descriptors stored word-major (structure of arrays), so that one
-/// query against consecutive train rows is a vectorisable loop.
+/// Train descriptors stored column-major (structure of arrays), so that one
+/// query against consecutive train rows is a vectorisable loop: the four
+/// 64-bit words ([`TrainSoa::words`]), or for AVX2 their low and high
+/// nibbles in eight columns ([`TrainSoa::nibbles`]).
 struct TrainSoa {
-    w: [Vec<u64>; 4],
+    w: Vec<Vec<u64>>,
 }
 
+/// Every byte's low nibble.
+const LOW_NIBBLES: u64 = 0x0f0f_0f0f_0f0f_0f0f;
+
 impl TrainSoa {
-    fn new(train: &[[u64; 4]]) -> Self {
-        Self { w: std::array::from_fn(|k| train.iter().map(|t| t[k]).collect()) }
+    fn words(train: &[[u64; 4]]) -> Self {
+        Self { w: (0..4).map(|k| train.iter().map(|t| t[k]).collect()).collect() }
+    }
+
+    /// Columns 0-3 the words' low nibbles, 4-7 their high nibbles (each in
+    /// the low half of its byte): the AVX2 kernel looks bytes' popcounts up
+    /// by nibble, and splitting the train rows once saves two instructions
+    /// per word and row.
+    fn nibbles(train: &[[u64; 4]]) -> Self {
+        let col = |k: usize| -> Vec<u64> {
+            train.iter().map(|t| if k < 4 { t[k] & LOW_NIBBLES } else { (t[k - 4] >> 4) & LOW_NIBBLES }).collect()
+        };
+        Self { w: (0..8).map(col).collect() }
+    }
+
+    fn none() -> Self {
+        Self { w: Vec::new() }
+    }
+
+    fn len(&self) -> usize {
+        self.w.first().map_or(0, Vec::len)
     }
 }
 
 /// Lanes of the per-lane two-smallest reduction.
 const LANES: usize = 8;
+
+/// A distance packed with an index, the distance in the high bits, so that
+/// one integer comparison orders by distance, then index. The kernel runs on
+/// 64-bit keys where the CPU compares them in one instruction (AVX-512) and
+/// on 32-bit keys where it does not (AVX2 has no unsigned 64-bit minimum:
+/// each took four instructions).
+trait Key: Copy + Ord {
+    /// Larger than every key.
+    const NONE: Self;
+    /// Distance `d` with index `idx`.
+    fn key(d: u32, idx: usize) -> Self;
+    /// The same distance with another index.
+    fn with_index(self, idx: usize) -> Self;
+    /// As `(d << 32) | index` ([`NONE`] stays none).
+    fn widen(self) -> u64;
+}
+
+impl Key for u64 {
+    const NONE: u64 = NONE;
+    #[inline(always)]
+    fn key(d: u32, idx: usize) -> u64 {
+        ((d as u64) << 32) | idx as u64
+    }
+    #[inline(always)]
+    fn with_index(self, idx: usize) -> u64 {
+        (self & !0xffff_ffff) | idx as u64
+    }
+    #[inline(always)]
+    fn widen(self) -> u64 {
+        self
+    }
+}
+
+/// 23 bits of index: the distance (9 bits, at most 256) fills the rest, and
+/// `u32::MAX` is above every key (256 << 23 | index < 2^32 - 1).
+const KEY32_INDEX_BITS: u32 = 23;
+
+impl Key for u32 {
+    const NONE: u32 = u32::MAX;
+    #[inline(always)]
+    fn key(d: u32, idx: usize) -> u32 {
+        (d << KEY32_INDEX_BITS) | idx as u32
+    }
+    #[inline(always)]
+    fn with_index(self, idx: usize) -> u32 {
+        (self & !((1 << KEY32_INDEX_BITS) - 1)) | idx as u32
+    }
+    #[inline(always)]
+    fn widen(self) -> u64 {
+        if self == u32::MAX {
+            return NONE;
+        }
+        pack(self >> KEY32_INDEX_BITS, (self & ((1 << KEY32_INDEX_BITS) - 1)) as usize)
+    }
+}
+
+/// Inserts `v` into the two smallest `r1 <= r2` (keys are distinct, the
+/// index being part of them); branch-free, so loops over rows vectorise.
+#[inline(always)]
+fn push_two<K: Key>(r1: &mut K, r2: &mut K, v: K) {
+    let hi = (*r1).max(v);
+    *r1 = (*r1).min(v);
+    *r2 = (*r2).min(hi);
+}
 
 /// Train rows per tile of [`soa_kernel`]: a tile's words (4 KB), its
 /// reverse minima and the packed distances of one query against it stay in
@@ -259,53 +338,48 @@ const LANES: usize = 8;
 const TRAIN_TILE: usize = 128;
 
 /// Vectorisable kernel: the train rows in tiles of [`TRAIN_TILE`]; for each
-/// query and tile, all distances packed with the train index (`(d << 32) |
-/// j`) in one pass, the tile's reverse minima in a second pass, and the
-/// query's two smallest keys by a per-lane reduction carried across tiles.
-/// Compiled for AVX-512 (VPOPCNTQ) or AVX2 (LLVM's shuffle-based vector
-/// popcount) by the wrappers below.
+/// query and tile, all distances packed with the train index as keys `K` in
+/// one pass, the tile's reverse minima in a second pass, and the query's two
+/// smallest keys by a per-lane reduction carried across tiles. `fill` makes
+/// the keys from the `C` columns of [`TrainSoa`]: [`fill_keys`] compiled for
+/// AVX-512 (VPOPCNTQ), [`fill_keys_avx2`] for AVX2, by the wrappers below;
+/// `rev`/`rev2` hold keys of query indices.
 #[inline(always)]
-fn soa_kernel<const TWO: bool>(
+fn soa_kernel<K: Key, const C: usize, const TWO: bool>(
     q: &[[u64; 4]],
     first: usize,
     t: &TrainSoa,
     best: &mut [Best],
-    rev: &mut [u64],
-    rev2: &mut [u64],
+    rev: &mut [K],
+    rev2: &mut [K],
+    fill: impl Fn(&[u64; 4], [&[u64]; C], usize, &mut [K]),
 ) {
-    let n = t.w[0].len();
-    let mut keys = [0u64; TRAIN_TILE];
+    let n = t.len();
+    let mut keys = [K::NONE; TRAIN_TILE];
     // Each query's per-lane two smallest keys, and the keys of a last tile
     // that is not a whole number of lanes.
-    let mut m1 = vec![[NONE; LANES]; q.len()];
-    let mut m2 = vec![[NONE; LANES]; q.len()];
+    let mut m1 = vec![[K::NONE; LANES]; q.len()];
+    let mut m2 = vec![[K::NONE; LANES]; q.len()];
     let mut rest = vec![PackedBest::EMPTY; q.len()];
     for start in (0..n).step_by(TRAIN_TILE) {
         // One length for every slice of the tile, so that the loops below
         // index without bounds checks and vectorise.
         let len = (n - start).min(TRAIN_TILE);
         let end = start + len;
-        let [w0, w1, w2, w3] = [&t.w[0][start..end], &t.w[1][start..end], &t.w[2][start..end], &t.w[3][start..end]];
-        let [w0, w1, w2, w3] = [&w0[..len], &w1[..len], &w2[..len], &w3[..len]];
+        let w: [&[u64]; C] = std::array::from_fn(|c| &t.w[c][start..end]);
         let rev = &mut rev[start..end];
         let rev2 = if TWO { &mut rev2[start..end] } else { &mut rev2[..0] };
         let keys = &mut keys[..len];
         for (k, qd) in q.iter().enumerate() {
-            let qi = (first + k) as u64;
-            for j in 0..len {
-                let d = (qd[0] ^ w0[j]).count_ones()
-                    + (qd[1] ^ w1[j]).count_ones()
-                    + (qd[2] ^ w2[j]).count_ones()
-                    + (qd[3] ^ w3[j]).count_ones();
-                keys[j] = ((d as u64) << 32) | (start + j) as u64;
-            }
+            let qi = first + k;
+            fill(qd, w, start, keys);
             if TWO {
                 for ((r1, r2), &key) in rev.iter_mut().zip(rev2.iter_mut()).zip(keys.iter()) {
-                    push_two(r1, r2, (key & !0xffff_ffff) | qi);
+                    push_two(r1, r2, key.with_index(qi));
                 }
             } else {
                 for (r, &key) in rev.iter_mut().zip(keys.iter()) {
-                    *r = (*r).min((key & !0xffff_ffff) | qi);
+                    *r = (*r).min(key.with_index(qi));
                 }
             }
             // Local copies, so that the lanes stay in registers.
@@ -321,18 +395,93 @@ fn soa_kernel<const TWO: bool>(
             }
             (m1[k], m2[k]) = (a, b);
             for &v in chunks.remainder() {
-                rest[k].push(v);
+                rest[k].push(v.widen());
             }
         }
     }
     for (k, b) in best.iter_mut().enumerate().take(q.len()) {
         let mut top = rest[k];
         for v in m1[k].into_iter().chain(m2[k]) {
-            top.push(v);
+            top.push(v.widen());
         }
         if top.first != NONE {
             *b = Best::from_packed(top.first, top.second);
         }
+    }
+}
+
+/// The keys of query `qd` against train rows `start..` (the tile's words
+/// `w`, as long as `keys`): portable code, which LLVM vectorises with
+/// VPOPCNTQ where the CPU has it.
+#[inline(always)]
+fn fill_keys<K: Key>(qd: &[u64; 4], w: [&[u64]; 4], start: usize, keys: &mut [K]) {
+    let len = keys.len();
+    let [w0, w1, w2, w3] = [&w[0][..len], &w[1][..len], &w[2][..len], &w[3][..len]];
+    for j in 0..len {
+        let d = (qd[0] ^ w0[j]).count_ones()
+            + (qd[1] ^ w1[j]).count_ones()
+            + (qd[2] ^ w2[j]).count_ones()
+            + (qd[3] ^ w3[j]).count_ones();
+        keys[j] = K::key(d, start + j);
+    }
+}
+
+/// [`fill_keys`] with AVX2 for 32-bit keys, eight rows at a time, from the
+/// train words' nibbles ([`TrainSoa::nibbles`]). AVX2 has no vector
+/// popcount: each byte's is looked up by nibble (Mula, Kurz and Lemire,
+/// "Faster population counts using AVX2 instructions", 2018), and the four
+/// words' byte counts are summed before one VPSADBW per four rows. LLVM's
+/// own lowering of `count_ones` summed every word separately, and on 64-bit
+/// keys this kernel measured slower than scalar POPCNT (docs/benchmarks.md).
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+#[inline]
+fn fill_keys_avx2(qd: &[u64; 4], w: [&[u64]; 8], start: usize, keys: &mut [u32]) {
+    use std::arch::x86_64::*;
+    let len = keys.len();
+    let [w0, w1, w2, w3, w4, w5, w6, w7] = w;
+    // Written out: `array::from_fn` and `map` were not inlined here, and
+    // their calls for every query and tile cost a tenth of the kernel.
+    let w = [&w0[..len], &w1[..len], &w2[..len], &w3[..len], &w4[..len], &w5[..len], &w6[..len], &w7[..len]];
+    let lut = _mm256_setr_epi8(
+        0, 1, 1, 2, 1, 2, 2, 3, 1, 2, 2, 3, 2, 3, 3, 4, 0, 1, 1, 2, 1, 2, 2, 3, 1, 2, 2, 3, 2, 3, 3, 4,
+    );
+    let zero = _mm256_setzero_si256();
+    // The query's nibbles, as the train columns hold them.
+    let lo = |x: u64| _mm256_set1_epi64x((x & LOW_NIBBLES) as i64);
+    let hi = |x: u64| _mm256_set1_epi64x(((x >> 4) & LOW_NIBBLES) as i64);
+    let q = [lo(qd[0]), lo(qd[1]), lo(qd[2]), lo(qd[3]), hi(qd[0]), hi(qd[1]), hi(qd[2]), hi(qd[3])];
+    // The rows' distances come out as [a0 b0 a1 b1 a2 b2 a3 b3] (rows j..j+4
+    // in a, j+4..j+8 in b); this puts them in row order.
+    let order = _mm256_setr_epi32(0, 2, 4, 6, 1, 3, 5, 7);
+    let mut idx = _mm256_add_epi32(_mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7), _mm256_set1_epi32(start as i32));
+    let eight = _mm256_set1_epi32(8);
+    let full = len - len % 8;
+    for j in (0..full).step_by(8) {
+        let (mut a, mut b) = (zero, zero);
+        for (wc, qc) in w.iter().zip(q) {
+            // SAFETY: j + 8 <= full <= len, the length of every column, so
+            // both unaligned 32-byte loads stay inside `wc`.
+            let (xa, xb) = unsafe {
+                let p = wc.as_ptr().add(j);
+                (_mm256_loadu_si256(p.cast()), _mm256_loadu_si256(p.add(4).cast()))
+            };
+            // A nibble's popcount is at most 4 and eight nibbles a byte add
+            // up to at most 32: no overflow.
+            a = _mm256_add_epi8(a, _mm256_shuffle_epi8(lut, _mm256_xor_si256(xa, qc)));
+            b = _mm256_add_epi8(b, _mm256_shuffle_epi8(lut, _mm256_xor_si256(xb, qc)));
+        }
+        let (da, db) = (_mm256_sad_epu8(a, zero), _mm256_sad_epu8(b, zero));
+        let d = _mm256_permutevar8x32_epi32(_mm256_blend_epi32(da, _mm256_slli_epi64(db, 32), 0b1010_1010), order);
+        let key = _mm256_or_si256(_mm256_slli_epi32(d, KEY32_INDEX_BITS as i32), idx);
+        // SAFETY: j + 8 <= len, so the 32-byte store stays inside `keys`.
+        unsafe { _mm256_storeu_si256(keys.as_mut_ptr().add(j).cast(), key) };
+        idx = _mm256_add_epi32(idx, eight);
+    }
+    // The last rows: the words put together again from their nibbles.
+    for j in full..len {
+        let d: u32 = (0..4).map(|c| (qd[c] ^ (w[c][j] | (w[c + 4][j] << 4))).count_ones()).sum();
+        keys[j] = u32::key(d, start + j);
     }
 }
 
@@ -346,13 +495,29 @@ type KernelArgs<'a> =
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx512f,avx512bw,avx512vl,avx512vpopcntdq,popcnt")]
 fn soa_kernel_avx512<const TWO: bool>((q, first, _, t, best, rev, rev2): KernelArgs<'_>) {
-    soa_kernel::<TWO>(q, first, t, best, rev, rev2)
+    soa_kernel::<u64, 4, TWO>(q, first, t, best, rev, rev2, fill_keys)
 }
 
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2,popcnt")]
 fn soa_kernel_avx2<const TWO: bool>((q, first, _, t, best, rev, rev2): KernelArgs<'_>) {
-    soa_kernel::<TWO>(q, first, t, best, rev, rev2)
+    // The task's reverse minima as 32-bit keys, merged into the packed ones.
+    let n = t.len();
+    let mut r1 = vec![u32::NONE; n];
+    let mut r2 = if TWO { vec![u32::NONE; n] } else { Vec::new() };
+    soa_kernel::<u32, 8, TWO>(q, first, t, best, &mut r1, &mut r2, |qd, w, start, keys| {
+        fill_keys_avx2(qd, w, start, keys)
+    });
+    if TWO {
+        for ((x1, x2), (y1, y2)) in rev.iter_mut().zip(rev2.iter_mut()).zip(r1.into_iter().zip(r2)) {
+            push_two(x1, x2, y1.widen());
+            push_two(x1, x2, y2.widen());
+        }
+    } else {
+        for (x, y) in rev.iter_mut().zip(r1) {
+            *x = (*x).min(y.widen());
+        }
+    }
 }
 
 #[cfg(target_arch = "x86_64")]
@@ -366,7 +531,8 @@ fn brute_force_block_popcnt<const TWO: bool>((q, first, train, _, best, rev, rev
 enum Kernel {
     /// AVX-512 with VPOPCNTQ, structure-of-arrays kernel.
     Avx512,
-    /// AVX2 (vector popcount by byte shuffles), structure-of-arrays kernel.
+    /// AVX2 (popcount by byte shuffles on the train rows' nibbles, 32-bit
+    /// keys), structure-of-arrays kernel.
     Avx2,
     /// Scalar POPCNT, 4 queries per train load.
     Popcnt,
@@ -391,6 +557,12 @@ impl Kernel {
             }
         }
         Kernel::Generic
+    }
+
+    /// This kernel, or scalar POPCNT where the AVX2 kernel's 32-bit keys
+    /// cannot hold the row indices (`rows` at least 2^23).
+    fn for_rows(self, rows: usize) -> Kernel {
+        if self == Kernel::Avx2 && rows >> KEY32_INDEX_BITS != 0 { Kernel::Popcnt } else { self }
     }
 
     /// Kernels usable on this CPU, fastest first (for tests).
@@ -469,9 +641,11 @@ impl Reverse {
 /// the thread count.
 fn nn_binary<const TWO: bool>(query: &[[u64; 4]], train: &[[u64; 4]], kernel: Kernel) -> (Vec<Best>, Reverse) {
     let mut best = vec![Best::EMPTY; query.len()];
+    let kernel = kernel.for_rows(query.len().max(train.len()));
     let soa = match kernel {
-        Kernel::Avx512 | Kernel::Avx2 => TrainSoa::new(train),
-        _ => TrainSoa { w: Default::default() },
+        Kernel::Avx512 => TrainSoa::words(train),
+        Kernel::Avx2 => TrainSoa::nibbles(train),
+        _ => TrainSoa::none(),
     };
     let rev = query
         .par_chunks(QUERIES_PER_TASK)
@@ -920,6 +1094,21 @@ mod tests {
                 }
             }
         }
+    }
+
+    #[test]
+    fn the_avx2_kernel_is_kept_only_where_its_keys_hold_the_indices() {
+        let max = (1 << KEY32_INDEX_BITS) - 1;
+        assert_eq!(Kernel::Avx2.for_rows(max), Kernel::Avx2);
+        assert_eq!(Kernel::Avx2.for_rows(max + 1), Kernel::Popcnt);
+        assert_eq!(Kernel::Avx512.for_rows(max + 1), Kernel::Avx512);
+        // The largest key is below the empty one, and keys order by
+        // distance, then index, as the packed 64-bit ones do.
+        assert!(u32::key(256, max) < u32::NONE);
+        assert_eq!(u32::key(256, max).widen(), pack(256, max));
+        assert_eq!(u32::NONE.widen(), NONE);
+        assert!(u32::key(3, max) < u32::key(4, 0) && u32::key(4, 0) < u32::key(4, 1));
+        assert_eq!(u32::key(7, 5).with_index(9), u32::key(7, 9));
     }
 
     #[test]

@@ -1112,6 +1112,33 @@ mod tests {
     }
 
     #[test]
+    fn every_kernel_is_exact_at_the_edges_of_its_groups_and_distances() {
+        // Train sets around the AVX2 kernel's groups of 8 rows, the lanes and
+        // the 128-row tiles; the queries include a train row's complement
+        // (distance 256, the largest key) and an exact copy (distance 0).
+        let mut s = 5;
+        let rows: Vec<[u64; 4]> = (0..260).map(|_| rng_desc(&mut s)).collect();
+        let mut query: Vec<[u64; 4]> = (0..37).map(|_| rng_desc(&mut s)).collect();
+        query.push(rows[0].map(|w| !w));
+        query.push(rows[3]);
+        let o = NnMatcherOptions { cross_check: false, max_ratio: 1.0, max_hamming: 256, ..Default::default() };
+        let m = NnMatcher::new(o.clone()).unwrap();
+        for n in [1, 2, 7, 8, 9, 15, 16, 17, 127, 128, 129, 136, 260] {
+            let train = &rows[..n];
+            let want = naive_match(&query, train, &o);
+            assert_eq!(want.len(), query.len());
+            for kernel in Kernel::available() {
+                assert_eq!(m.match_binary_with(&query, train, kernel), want, "{n} rows, {kernel:?}");
+                let (ab, ba) = m.match_binary_both_with(&query, train, kernel);
+                assert_eq!(ab, want, "{n} rows both ways, {kernel:?}");
+                assert_eq!(ba, naive_match(train, &query, &o), "{n} rows backwards, {kernel:?}");
+            }
+        }
+        let far = naive_match(&query, &rows[..1], &o);
+        assert_eq!(far[37].distance, 256.0);
+    }
+
+    #[test]
     fn both_ways_in_one_pass_equal_two_calls() {
         let mut s = 7;
         // Few bits set, so distances tie often and the ratio test and the

@@ -286,7 +286,7 @@ impl Key for u64 {
     const NONE: u64 = NONE;
     #[inline(always)]
     fn key(d: u32, idx: usize) -> u64 {
-        ((d as u64) << 32) | idx as u64
+        pack(d, idx)
     }
     #[inline(always)]
     fn with_index(self, idx: usize) -> u64 {
@@ -301,6 +301,8 @@ impl Key for u64 {
 /// 23 bits of index: the distance (9 bits, at most 256) fills the rest, and
 /// `u32::MAX` is above every key (256 << 23 | index < 2^32 - 1).
 const KEY32_INDEX_BITS: u32 = 23;
+/// The index bits of a 32-bit key.
+const KEY32_INDEX_MASK: u32 = (1 << KEY32_INDEX_BITS) - 1;
 
 impl Key for u32 {
     const NONE: u32 = u32::MAX;
@@ -310,14 +312,14 @@ impl Key for u32 {
     }
     #[inline(always)]
     fn with_index(self, idx: usize) -> u32 {
-        (self & !((1 << KEY32_INDEX_BITS) - 1)) | idx as u32
+        (self & !KEY32_INDEX_MASK) | idx as u32
     }
     #[inline(always)]
     fn widen(self) -> u64 {
         if self == u32::MAX {
             return NONE;
         }
-        pack(self >> KEY32_INDEX_BITS, (self & ((1 << KEY32_INDEX_BITS) - 1)) as usize)
+        pack(self >> KEY32_INDEX_BITS, (self & KEY32_INDEX_MASK) as usize)
     }
 }
 
@@ -330,9 +332,10 @@ fn push_two<K: Key>(r1: &mut K, r2: &mut K, v: K) {
     *r2 = (*r2).min(hi);
 }
 
-/// Train rows per tile of [`soa_kernel`]: a tile's words (4 KB), its
-/// reverse minima and the packed distances of one query against it stay in
-/// the L1 cache while every query of the task passes over them. Whole train
+/// Train rows per tile of [`soa_kernel`]: a tile's columns (4 KB of words,
+/// 8 KB of nibbles), its reverse minima and the packed distances of one
+/// query against it stay in the L1 cache while every query of the task
+/// passes over them. Whole train
 /// sets per query streamed those from L2 at Strecha's 8,000 keypoints;
 /// tiles of 256 rows and more measured slower (docs/benchmarks.md).
 const TRAIN_TILE: usize = 128;
@@ -1098,7 +1101,7 @@ mod tests {
 
     #[test]
     fn the_avx2_kernel_is_kept_only_where_its_keys_hold_the_indices() {
-        let max = (1 << KEY32_INDEX_BITS) - 1;
+        let max = KEY32_INDEX_MASK as usize;
         assert_eq!(Kernel::Avx2.for_rows(max), Kernel::Avx2);
         assert_eq!(Kernel::Avx2.for_rows(max + 1), Kernel::Popcnt);
         assert_eq!(Kernel::Avx512.for_rows(max + 1), Kernel::Avx512);
